@@ -1,0 +1,29 @@
+"""User-facing errors: one line naming the problem and where it is."""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Iterable
+
+
+class UserError(Exception):
+    """A problem with the user's input (scene, architecture, sweep, CLI).
+
+    The CLI prints ``str(error)`` on one line and exits with status 2; no
+    traceback is shown. The message names the file and key where known.
+    """
+
+
+def did_you_mean(name: str, choices: Iterable[str]) -> str:
+    """Return ``" (did you mean 'x'?)"`` for the closest choice, or ``""``."""
+    close = difflib.get_close_matches(name, list(choices), n=1, cutoff=0.6)
+    return f" (did you mean '{close[0]}'?)" if close else ""
+
+
+def unknown_key_error(where: str, key: str, choices: Iterable[str]) -> UserError:
+    """Build the error for an unknown setting, suggesting the nearest name."""
+    choices = sorted(choices)
+    return UserError(
+        f"{where}: unknown key '{key}'{did_you_mean(key, choices)}; "
+        f"known keys: {', '.join(choices)}"
+    )
