@@ -1,0 +1,62 @@
+"""Counter declarations and the tidy counters table.
+
+Every unit declares the counters it owns (ATTILA style): the common ones
+(records in and out, arithmetic by class, bytes) followed by its own events.
+Kernels fill an int64 vector laid out as the unit declares; ``CounterSet``
+accumulates those vectors and renders one tidy row per (unit, counter).
+Ratios such as STE are kept as numerator and denominator counters and
+computed when reported.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+# Arithmetic classes, in the order kernels write them (indices 0..4).
+OP_ADD, OP_MUL, OP_MADD, OP_RCP, OP_CMP = range(5)
+ARITHMETIC = ("add", "mul", "madd", "rcp", "compare")
+N_OPS = len(ARITHMETIC)
+COMMON = ("records_in", "records_out", *ARITHMETIC, "bytes_read", "bytes_written")
+
+
+@dataclass
+class CounterSet:
+    """Accumulated counters of one unit: common ones first, then ``events``."""
+
+    unit: str
+    events: tuple[str, ...]
+    values: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.values = np.zeros(len(COMMON) + len(self.events), dtype=np.int64)
+        self._index = {name: i for i, name in enumerate(self.names)}
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return COMMON + self.events
+
+    def add(self, name: str, amount: int) -> None:
+        self.values[self._index[name]] += int(amount)
+
+    def add_ops(self, ops: np.ndarray) -> None:
+        """Add a kernel's arithmetic vector (length ``N_OPS``)."""
+        self.values[2 : 2 + N_OPS] += ops[:N_OPS]
+
+    def add_events(self, events: np.ndarray) -> None:
+        """Add a kernel's event vector laid out as ``self.events``."""
+        self.values[len(COMMON) :] += events[: len(self.events)]
+
+    def __getitem__(self, name: str) -> int:
+        return int(self.values[self._index[name]])
+
+    def as_dict(self) -> dict[str, int]:
+        return {n: int(v) for n, v in zip(self.names, self.values)}
+
+
+def counters_frame(sets: list[CounterSet]) -> pd.DataFrame:
+    """Tidy table: one row per unit and counter (columns unit, counter, value)."""
+    rows = [(s.unit, n, int(v)) for s in sets for n, v in zip(s.names, s.values)]
+    return pd.DataFrame(rows, columns=["unit", "counter", "value"])

@@ -1,0 +1,131 @@
+"""From a scene to a draw: clip-space triangles at shutter open and close.
+
+A ``Draw`` is the input of triangle setup, kept as structure of arrays. Each
+vertex is given in homogeneous clip space at t=0 (``q``) and t=1 (``r``);
+between them it moves linearly (PIPELINE.md §1). With a thin lens the vertex
+seen from lens position (u, v) in the unit disk moves by
+(u * lens_x, v * lens_y) in clip x and y, where the circle of confusion is
+linear in clip w (001 §3.1): for a lens of radius R focused at distance F,
+lens_x = P[0,0] * R * (w / F - 1) and lens_y = P[1,1] * R * (w / F - 1)
+(shifting the pinhole by (uR, vR) and shearing the frustum so the focus plane
+stays fixed).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline_sim.errors import UserError
+
+MATERIAL_IDS = {"flat": 0, "lambert": 1}
+
+
+@dataclass
+class Draw:
+    """Clip-space triangles and their shading attributes (structure of arrays).
+
+    Shapes: ``q``, ``r`` (N,3,4) float64 clip (x, y, z, w); ``lens_x``,
+    ``lens_y`` (N,3,2) float64 clip shift per unit lens coordinate at t=0 and
+    t=1; ``pos`` and ``nrm`` (2,N,3,3) float32 world position and normal at
+    t=0 and t=1; ``color`` (N,3,3) float32; ``material`` (N,) int32;
+    ``object_id`` (N,) int32.
+    """
+
+    q: np.ndarray
+    r: np.ndarray
+    lens_x: np.ndarray
+    lens_y: np.ndarray
+    pos: np.ndarray
+    nrm: np.ndarray
+    color: np.ndarray
+    material: np.ndarray
+    object_id: np.ndarray
+    width: int
+    height: int
+
+    @property
+    def n(self) -> int:
+        return int(self.q.shape[0])
+
+    @property
+    def has_motion(self) -> bool:
+        return bool(np.any(self.q != self.r))
+
+    @property
+    def has_lens(self) -> bool:
+        return bool(np.any(self.lens_x != 0) or np.any(self.lens_y != 0))
+
+
+def lens_shift(proj: np.ndarray, w: np.ndarray, radius: float, focus: float) -> tuple[np.ndarray, np.ndarray]:
+    """Clip-space x and y shift per unit lens coordinate for vertices at depth ``w``."""
+    coc = radius * (w / focus - 1.0)
+    return proj[0, 0] * coc, proj[1, 1] * coc
+
+
+def build_draw(scene) -> Draw:
+    """Transform every object of ``scene`` to clip space at t=0 and t=1."""
+    img = scene.image
+    cam = scene.camera
+    proj = cam.projection_matrix(img.width / img.height)
+    views = [cam.view_matrix(0.0), cam.view_matrix(1.0)]
+    qs, rs, pos, nrm, col, mat, oid = [], [], [[], []], [[], []], [], [], []
+    for index, obj in enumerate(scene.objects):
+        faces = np.asarray(obj.faces, dtype=np.int64)
+        for t in (0, 1):
+            world = obj.world_positions(t)
+            hom = np.concatenate([world, np.ones((len(world), 1))], axis=1)
+            clip = hom @ (proj @ views[t]).T
+            (qs if t == 0 else rs).append(clip[faces])
+            pos[t].append(world[faces])
+            nrm[t].append(obj.world_normals(t)[faces])
+        col.append(np.asarray(obj.colors, dtype=np.float32)[faces])
+        mat.append(np.full(len(faces), MATERIAL_IDS[obj.material], dtype=np.int32))
+        oid.append(np.full(len(faces), index, dtype=np.int32))
+    if not qs:
+        raise UserError(f"{scene.path or 'scene'}: the scene has no triangles")
+    q = np.concatenate(qs)
+    r = np.concatenate(rs)
+    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(r))):
+        raise UserError(f"{scene.path or 'scene'}: a vertex transforms to a non-finite clip position")
+    n = len(q)
+    lens_x = np.zeros((n, 3, 2))
+    lens_y = np.zeros((n, 3, 2))
+    if cam.lens is not None and cam.lens.radius > 0:
+        for t, verts in enumerate((q, r)):
+            lens_x[:, :, t], lens_y[:, :, t] = lens_shift(
+                proj, verts[:, :, 3], cam.lens.radius, cam.lens.focus_distance
+            )
+    return Draw(
+        q=q,
+        r=r,
+        lens_x=lens_x,
+        lens_y=lens_y,
+        pos=np.stack([np.concatenate(pos[0]), np.concatenate(pos[1])]).astype(np.float32),
+        nrm=np.stack([np.concatenate(nrm[0]), np.concatenate(nrm[1])]).astype(np.float32),
+        color=np.concatenate(col),
+        material=np.concatenate(mat),
+        object_id=np.concatenate(oid),
+        width=img.width,
+        height=img.height,
+    )
+
+
+def draw_from_clip(q, r=None, lens_x=None, lens_y=None, color=None, width=64, height=64) -> Draw:
+    """A draw made directly from clip-space triangles (tests, workloads)."""
+    q = np.asarray(q, dtype=np.float64).reshape(-1, 3, 4)
+    r = q.copy() if r is None else np.asarray(r, dtype=np.float64).reshape(-1, 3, 4)
+    n = len(q)
+    lx = np.zeros((n, 3, 2)) if lens_x is None else np.asarray(lens_x, dtype=np.float64).reshape(n, 3, 2)
+    ly = np.zeros((n, 3, 2)) if lens_y is None else np.asarray(lens_y, dtype=np.float64).reshape(n, 3, 2)
+    if color is None:
+        color = np.ones((n, 3, 3), dtype=np.float32)
+    color = np.broadcast_to(np.asarray(color, dtype=np.float32).reshape(-1, 3, 3) if np.ndim(color) == 3
+                            else np.asarray(color, dtype=np.float32).reshape(n, 1, 3), (n, 3, 3)).copy()
+    pos = np.stack([q[:, :, :3], r[:, :, :3]]).astype(np.float32)
+    nrm = np.zeros_like(pos)
+    nrm[..., 2] = 1.0
+    return Draw(q=q, r=r, lens_x=lx, lens_y=ly, pos=pos, nrm=nrm, color=color,
+                material=np.zeros(n, dtype=np.int32), object_id=np.zeros(n, dtype=np.int32),
+                width=width, height=height)

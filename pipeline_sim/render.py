@@ -1,0 +1,245 @@
+"""The Python API: run render passes through the simulated pipeline.
+
+    from pipeline_sim import load_scene, load_arch, render_scene
+    result = render_scene(load_scene("workloads/scenes/default.toml"), load_arch())
+    result.image        # (H, W, 4) float32 linear RGBA, row 0 at the top
+    result.counters     # tidy DataFrame: unit, counter, value
+    result.timing.units # busy / starved / blocked cycles per unit
+
+A workload with several passes builds ``RenderPass`` objects itself; a pass
+may name an earlier pass in ``texture`` to sample its resolved image.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+import pandas as pd
+
+from pipeline_sim.config import ArchConfig
+from pipeline_sim.counters import CounterSet, counters_frame
+from pipeline_sim.draw import Draw, build_draw
+from pipeline_sim.errors import UserError
+from pipeline_sim.pipeline import Stage, TimingResult, chunks, count_records, cycles_for, simulate
+from pipeline_sim.sampling import make_samples
+from pipeline_sim.shaders import standard_params, standard_shader
+from units.rop import Rop
+from units.sample_tester import SampleTester
+from units.shading_cache import Shading
+from units.tile_test import TileTest
+from units.tile_traverser import TileTraverser
+from units.triangle_setup import TriangleSetup
+from units.zcull import ZCull
+
+UNIT_ORDER = ("triangle_setup", "tile_traverser", "tile_test", "zcull", "sample_tester", "shading", "rop")
+
+# bytes moved per record, for the memory-traffic counters
+SETUP_BYTES_IN = 3 * 2 * (16 + 8)  # three vertices, two times, clip xyzw + lens shift
+SETUP_BYTES_OUT = 3 * 4 * 4 * 2 + 3 * 2 * 4 * 2 + 64
+TILE_RECORD_BYTES = 12
+INTERVAL_BYTES = 32
+SAMPLE_RECORD_BYTES = 28
+
+
+@dataclass
+class RenderPass:
+    """One pass: a draw, the architecture, sampling and the shader to run."""
+
+    draw: Draw
+    arch: ArchConfig
+    spp: int
+    seed: int = 0
+    name: str = "main"
+    shader: Callable = standard_shader
+    params: np.ndarray = field(default_factory=lambda: np.zeros(8, np.float32))
+    texture: np.ndarray | str | None = None
+    clear_color: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+    clear_depth: float = 1.0
+    sample_pattern: str = "net"
+    sample_table: np.ndarray | None = None
+
+
+@dataclass
+class PassResult:
+    """Image, counters and timing of one pass."""
+
+    name: str
+    image: np.ndarray
+    counters: pd.DataFrame
+    timing: TimingResult
+    wall_time: float
+    dimensions: dict[str, bool]
+    units_used: list[str]
+    depth: np.ndarray
+    samples: Any
+
+    def counter(self, unit: str, name: str) -> int:
+        c = self.counters
+        v = c[(c.unit == unit) & (c.counter == name)].value
+        return int(v.iloc[0]) if len(v) else 0
+
+    @property
+    def ste(self) -> float:
+        """Sample test efficiency: covered / tested samples (001 §1.1)."""
+        tested = self.counter("sample_tester", "samples_tested")
+        return self.counter("sample_tester", "samples_covered") / tested if tested else float("nan")
+
+
+def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
+             progress: Callable[[int, int], None] | None = None) -> PassResult:
+    """Simulate one pass and return its image, counters and timing."""
+    start = time.perf_counter()
+    arch = p.arch
+    draw = p.draw
+    conservative = arch.pipeline.mode == "conservative"
+    ts = 1 if conservative else arch.tile_traverser.tile_size
+    motion, lens = draw.has_motion, draw.has_lens
+    texture = textures[p.texture] if isinstance(p.texture, str) else p.texture
+    if isinstance(p.texture, str) and textures is None:
+        raise UserError(f"pass {p.name}: texture '{p.texture}' needs run_passes")
+    spp = 1 if conservative else p.spp
+    samples = make_samples(draw.width, draw.height, spp, p.seed, lens=lens, motion=motion,
+                           pattern=p.sample_pattern, table=p.sample_table)
+
+    setup = TriangleSetup(arch.triangle_setup, draw, ts)
+    traverser = TileTraverser(arch.tile_traverser, setup.table, ts, draw.width, draw.height)
+    tile_test = TileTest(arch.tile_test, setup.table, ts, draw.width, draw.height)
+    zcull = ZCull(arch.zcull, arch.rop.depth_test, ts, draw.width, draw.height, p.clear_depth)
+    if conservative:
+        zcull.active = False
+    tester = SampleTester(arch.sample_tester, setup.table, samples, ts, arch.triangle_setup.backface_culling)
+    shading = Shading(arch.shading, draw, setup.table, samples, p.shader, p.params, texture, conservative)
+    rop = Rop(arch.rop, draw.width, draw.height, spp, p.clear_color, p.clear_depth,
+              zcull if zcull.active else None, samples)
+    cs = {u.name: CounterSet(u.name, u.events) for u in (setup, traverser, tile_test, zcull, tester, shading, rop)}
+    pcfg = arch.pipeline
+    done = [0]
+
+    def step_setup(ids):
+        out, ops, ev = setup.run(ids)
+        c = cs["triangle_setup"]
+        c.add_ops(ops), c.add_events(ev), count_records(c, len(ids), len(out))
+        c.add("bytes_read", len(ids) * SETUP_BYTES_IN)
+        c.add("bytes_written", len(out) * SETUP_BYTES_OUT)
+        done[0] += len(ids)
+        if progress is not None:
+            progress(done[0], draw.n)
+        cfg = arch.triangle_setup
+        return ([out] if len(out) else []), cycles_for(len(ids), cfg.throughput, cfg.instances)
+
+    def step_traverse(ids):
+        out, ops, ev = traverser.run(ids)
+        c = cs["tile_traverser"]
+        n = len(out["tri"])
+        c.add_ops(ops), c.add_events(ev), count_records(c, len(ids), n)
+        c.add("bytes_written", n * TILE_RECORD_BYTES)
+        cfg = arch.tile_traverser
+        return chunks(out, pcfg.tiles_per_batch), cycles_for(ev[0] + n, cfg.throughput, cfg.instances)
+
+    def step_tile_test(tiles):
+        out, ops, ev = tile_test.run(tiles)
+        c = cs["tile_test"]
+        n_in = len(tiles["tri"])
+        c.add_ops(ops), c.add_events(ev), count_records(c, n_in, len(out["tri"]))
+        c.add("bytes_read", n_in * TILE_RECORD_BYTES)
+        c.add("bytes_written", len(out["tri"]) * (TILE_RECORD_BYTES + INTERVAL_BYTES))
+        cfg = arch.tile_test
+        return ([out] if len(out["tri"]) else []), cycles_for(n_in, cfg.throughput, cfg.instances)
+
+    def step_zcull(tiles):
+        out, ops, ev = zcull.run(tiles)
+        c = cs["zcull"]
+        n_in = len(tiles["tri"])
+        c.add_ops(ops), c.add_events(ev), count_records(c, n_in, len(out["tri"]))
+        c.add("bytes_read", int(ev[2]) * 8)
+        cfg = arch.zcull
+        return ([out] if len(out["tri"]) else []), cycles_for(n_in, cfg.throughput, cfg.instances)
+
+    def step_sample_test(tiles):
+        out, ops, ev = tester.run(tiles)
+        c = cs["sample_tester"]
+        n = len(out["tri"])
+        c.add_ops(ops), c.add_events(ev), count_records(c, len(tiles["tri"]), n)
+        c.add("bytes_read", int(ev[2]) * 20)
+        c.add("bytes_written", n * SAMPLE_RECORD_BYTES)
+        cfg = arch.sample_tester
+        return chunks(out, pcfg.samples_per_batch), cycles_for(ev[0] + ev[3], cfg.throughput, cfg.instances)
+
+    def step_shade(batch):
+        out, ops, ev = shading.run(batch)
+        c = cs["shading"]
+        n = len(batch["tri"])
+        c.add_ops(ops), c.add_events(ev), count_records(c, n, n)
+        c.add("bytes_written", n * 16)
+        cfg = arch.shading
+        cyc = max(cycles_for(ev[0], cfg.throughput, cfg.instances),
+                  cycles_for(ev[4] * cfg.shader_cycles, float(cfg.cores), 1))
+        return [out], cyc
+
+    def step_rop(batch):
+        _, ops, ev, traffic = rop.run(batch)
+        c = cs["rop"]
+        n = len(batch["pix"])
+        c.add_ops(ops), c.add_events(ev), count_records(c, n, int(ev[3]))
+        c.add("bytes_read", int(traffic[0]))
+        c.add("bytes_written", int(traffic[1]))
+        if rop.zcull is not None:
+            cs["zcull"].add_events(rop.zcull_refresh_events)
+        cfg = arch.rop
+        cyc = max(cycles_for(n, cfg.throughput, cfg.instances), cycles_for(traffic.sum(), cfg.bandwidth, 1))
+        return [], cyc
+
+    stage_defs = [
+        ("triangle_setup", step_setup, arch.triangle_setup.latency),
+        ("tile_traverser", step_traverse, arch.tile_traverser.latency),
+        ("tile_test", step_tile_test, arch.tile_test.latency),
+        ("zcull", step_zcull, arch.zcull.latency),
+        ("sample_tester", step_sample_test, arch.sample_tester.latency),
+        ("shading", step_shade, arch.shading.latency),
+        ("rop", step_rop, arch.rop.latency),
+    ]
+    bypassed = set()
+    if not zcull.active:
+        bypassed.add("zcull")
+    if conservative:
+        bypassed.add("sample_tester")
+    stages = [Stage(name, fn, lat) for name, fn, lat in stage_defs if name not in bypassed]
+    ids = np.arange(draw.n, dtype=np.int64)
+    tri_batches = [ids[i : i + pcfg.triangles_per_batch] for i in range(0, draw.n, pcfg.triangles_per_batch)]
+    timing = simulate(stages, tri_batches, pcfg.queue_depth)
+    image = rop.resolve()
+    wall = time.perf_counter() - start
+    counters = counters_frame([cs[name] for name in UNIT_ORDER])
+    return PassResult(
+        name=p.name, image=image, counters=counters, timing=timing, wall_time=wall,
+        dimensions={"motion": motion, "lens": lens}, units_used=[s.name for s in stages],
+        depth=rop.depth.reshape(draw.height, draw.width, spp), samples=samples,
+    )
+
+
+def run_passes(passes: list[RenderPass], progress=None) -> dict[str, PassResult]:
+    """Run passes in order; a pass's ``texture`` may name an earlier pass."""
+    results: dict[str, PassResult] = {}
+    for p in passes:
+        if isinstance(p.texture, str) and p.texture not in results:
+            raise UserError(f"pass {p.name}: texture '{p.texture}' names no earlier pass")
+        results[p.name] = run_pass(p, textures={k: v.image for k, v in results.items()}, progress=progress)
+    return results
+
+
+def scene_pass(scene, arch: ArchConfig, **overrides) -> RenderPass:
+    """The standard single pass of a scene: its draw, light and background."""
+    bg = tuple(float(c) for c in scene.background) + (1.0,)
+    kw: dict[str, Any] = dict(draw=build_draw(scene), arch=arch, spp=scene.image.spp, seed=scene.image.seed,
+                              params=standard_params(scene.light), clear_color=bg)
+    kw.update(overrides)
+    return RenderPass(**kw)
+
+
+def render_scene(scene, arch: ArchConfig, progress=None, **overrides) -> PassResult:
+    """Render a scene in one standard pass."""
+    return run_pass(scene_pass(scene, arch, **overrides), progress=progress)

@@ -1,0 +1,130 @@
+"""Shaders: numba-compiled Python functions run by the shading unit.
+
+A shader shades a batch of shading points at once::
+
+    @numba.njit(cache=True)
+    def my_shader(inputs, params, texture, out):
+        # inputs:  float32[N_INPUTS, K], one row per input named in INPUTS
+        # params:  float32[:], the pass's shader parameters
+        # texture: float32[H, W, 4], an earlier pass's resolved image (or 1x1)
+        # out:     float32[K, 4], RGBA written by the shader
+        for i in range(inputs.shape[1]):
+            out[i, 0] = inputs[IN_R, i]
+            ...
+
+Workloads bring their own shaders in the same form. In standard mode the
+inputs describe the surface point (world position, normal, color at the
+shading time) and the sample; in conservative mode (000 §2) the shader runs
+once per (triangle, pixel) and also receives the tile intervals
+(u^, v^, t^, z^).
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+INPUTS = (
+    "px", "py", "pz",  # world position of the shading point
+    "nx", "ny", "nz",  # world normal (unit)
+    "r", "g", "b",  # interpolated vertex color
+    "t", "u", "v",  # shading time and lens position
+    "x", "y",  # screen position in pixels (row 0 at the top)
+    "depth",  # z/w of the sample (standard) or of the pixel centre (conservative: z^ midpoint)
+    "material", "object", "triangle",
+    "t_lo", "t_hi", "u_lo", "u_hi", "v_lo", "v_hi", "z_lo", "z_hi",  # conservative mode only
+)
+N_INPUTS = len(INPUTS)
+(IN_PX, IN_PY, IN_PZ, IN_NX, IN_NY, IN_NZ, IN_R, IN_G, IN_B, IN_T, IN_U, IN_V, IN_X, IN_Y, IN_DEPTH,
+ IN_MATERIAL, IN_OBJECT, IN_TRIANGLE, IN_T_LO, IN_T_HI, IN_U_LO, IN_U_HI, IN_V_LO, IN_V_HI, IN_Z_LO,
+ IN_Z_HI) = range(N_INPUTS)
+
+# parameters of the standard shader
+LIGHT_DIRECTIONAL, LIGHT_POINT = 0.0, 1.0
+STANDARD_PARAMS = ("light_kind", "light_x", "light_y", "light_z", "light_r", "light_g", "light_b", "ambient")
+
+
+def standard_params(light) -> np.ndarray:
+    """Parameters of ``standard_shader`` for a scene light."""
+    kind = LIGHT_DIRECTIONAL if light.kind == "directional" else LIGHT_POINT
+    vec = light.direction if light.kind == "directional" else light.position
+    rgb = np.asarray(light.color, dtype=np.float64) * light.intensity
+    return np.array([kind, *vec, *rgb, light.ambient], dtype=np.float32)
+
+
+@nb.njit(cache=True)
+def standard_shader(inputs, params, texture, out):
+    """Flat (material 0: unlit color) or Lambert (material 1) with one light."""
+    kind = params[0]
+    for i in range(inputs.shape[1]):
+        r = inputs[IN_R, i]
+        g = inputs[IN_G, i]
+        b = inputs[IN_B, i]
+        if inputs[IN_MATERIAL, i] == 0.0:
+            out[i, 0] = r
+            out[i, 1] = g
+            out[i, 2] = b
+            out[i, 3] = 1.0
+            continue
+        if kind == LIGHT_DIRECTIONAL:
+            lx, ly, lz = -params[1], -params[2], -params[3]
+            atten = np.float32(1.0)
+        else:
+            lx = params[1] - inputs[IN_PX, i]
+            ly = params[2] - inputs[IN_PY, i]
+            lz = params[3] - inputs[IN_PZ, i]
+            d2 = lx * lx + ly * ly + lz * lz
+            atten = np.float32(1.0) / max(d2, np.float32(1e-12))
+        ln = np.sqrt(lx * lx + ly * ly + lz * lz)
+        if ln > 0:
+            lx, ly, lz = lx / ln, ly / ln, lz / ln
+        ndl = max(np.float32(0.0), inputs[IN_NX, i] * lx + inputs[IN_NY, i] * ly + inputs[IN_NZ, i] * lz)
+        amb = params[7]
+        out[i, 0] = r * (amb + params[4] * ndl * atten)
+        out[i, 1] = g * (amb + params[5] * ndl * atten)
+        out[i, 2] = b * (amb + params[6] * ndl * atten)
+        out[i, 3] = 1.0
+
+
+@nb.njit(cache=True)
+def depth_shader(inputs, params, texture, out):
+    """Writes the sample depth z/w to every channel (depth and shadow maps)."""
+    for i in range(inputs.shape[1]):
+        d = inputs[IN_DEPTH, i]
+        out[i, 0] = d
+        out[i, 1] = d
+        out[i, 2] = d
+        out[i, 3] = 1.0
+
+
+@nb.njit(cache=True)
+def interval_shader(inputs, params, texture, out):
+    """Conservative mode: writes (t_lo, z_lo, t_hi, z_hi) of the pixel's tile test
+    (the tz-box of 000 §3 continuous collision detection)."""
+    for i in range(inputs.shape[1]):
+        out[i, 0] = inputs[IN_T_LO, i]
+        out[i, 1] = inputs[IN_Z_LO, i]
+        out[i, 2] = inputs[IN_T_HI, i]
+        out[i, 3] = inputs[IN_Z_HI, i]
+
+
+@nb.njit(cache=True)
+def sample_texture(texture, s, t):
+    """Bilinear lookup of ``texture`` (H, W, 4) at (s, t) in [0, 1]^2, t=0 at
+    the top row; clamps at the border. Returns a 4-tuple."""
+    h = texture.shape[0]
+    w = texture.shape[1]
+    x = min(max(s * w - 0.5, 0.0), w - 1.0)
+    y = min(max(t * h - 0.5, 0.0), h - 1.0)
+    x0 = int(x)
+    y0 = int(y)
+    x1 = min(x0 + 1, w - 1)
+    y1 = min(y0 + 1, h - 1)
+    fx = x - x0
+    fy = y - y0
+    res = np.empty(4, np.float32)
+    for c in range(4):
+        top = texture[y0, x0, c] * (1 - fx) + texture[y0, x1, c] * fx
+        bot = texture[y1, x0, c] * (1 - fx) + texture[y1, x1, c] * fx
+        res[c] = top * (1 - fy) + bot * fy
+    return res[0], res[1], res[2], res[3]

@@ -1,0 +1,195 @@
+"""Sample tester: the exact 5D inside test for the samples of each tile.
+
+Implements PIPELINE.md §2.5. For each pixel of a surviving tile, the samples
+whose t lies in t^ form a contiguous range of the pixel's t-ordered samples
+(a binary-search range lookup, 002 §5); those whose (u, v) also lie in
+(u^, v^) get the exact test at their own (x, y, u, v, t):
+
+* vertices lerped to t and shifted by the lens: p_k = (X + u LX, Y + v LY, W)
+  (001 §3.1);
+* 2DH edge functions e_k = (p_j x p_i) . (x, y, 1) (Olano and Greer; 004 eq. 3
+  at a fixed t) and the orientation D = p_0 . (p_2 x p_1);
+* inside when every e_k has the sign of D; a zero e_k counts only on a
+  top-left edge (normal (a, b) with a > 0, or a == 0 and b > 0, after
+  orienting by D), so samples on a shared edge or vertex are covered exactly
+  once (003 §3.4);
+* perspective-correct barycentrics b_k = e_k / sum(e) and depth
+  z/w = sum(e_k z_k) / D (004 eq. 10-13), clipped to [-1, 1] (near and far).
+
+Arithmetic is float32, as in hardware; the computation is bit-for-bit the
+same for the two triangles that share an edge, which makes it watertight.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from pipeline_sim.counters import N_OPS, OP_ADD, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+
+EVENTS = ("samples_tested", "samples_covered", "samples_in_range", "pixels_visited")
+EV_TESTED, EV_COVERED, EV_INRANGE, EV_PIXELS = range(len(EVENTS))
+
+# arithmetic of one exact 5D test (vertex lerp + lens, three edges, D) and of a covered sample
+TEST_OPS_MADD = 9 + 6 + 9 + 6 + 2
+TEST_OPS_MUL = 9 + 3
+COVER_OPS_RCP = 1
+COVER_OPS_MUL = 4
+COVER_OPS_MADD = 3 + 3
+
+
+@nb.njit(cache=True, inline="always")
+def _top_left(a, b):
+    return a > 0.0 or (a == 0.0 and b > 0.0)
+
+
+@nb.njit(cache=True)
+def inside_test(p0, dp, l0, dl, tri, x, y, t, u, v, backface_culling):
+    """Exact 5D test of one sample (float32); returns (covered, b0, b1, b2, z_ndc)."""
+    X = np.empty(3, np.float32)
+    Y = np.empty(3, np.float32)
+    W = np.empty(3, np.float32)
+    for k in range(3):
+        X[k] = p0[tri, k, 0] + t * dp[tri, k, 0] + u * (l0[tri, k, 0] + t * dl[tri, k, 0])
+        Y[k] = p0[tri, k, 1] + t * dp[tri, k, 1] + v * (l0[tri, k, 1] + t * dl[tri, k, 1])
+        W[k] = p0[tri, k, 3] + t * dp[tri, k, 3]
+    na = np.empty(3, np.float32)
+    nb_ = np.empty(3, np.float32)
+    e = np.empty(3, np.float32)
+    for k in range(3):
+        i = (k + 1) % 3
+        j = (k + 2) % 3
+        # n_k = p_j x p_i
+        a = Y[j] * W[i] - W[j] * Y[i]
+        b = W[j] * X[i] - X[j] * W[i]
+        c = X[j] * Y[i] - Y[j] * X[i]
+        na[k] = a
+        nb_[k] = b
+        e[k] = a * x + b * y + c
+    # D = p0 . (p2 x p1) = p0 . n_0
+    a0 = Y[2] * W[1] - W[2] * Y[1]
+    b0 = W[2] * X[1] - X[2] * W[1]
+    c0 = X[2] * Y[1] - Y[2] * X[1]
+    D = X[0] * a0 + Y[0] * b0 + W[0] * c0
+    if D == 0.0 or (backface_culling and D < 0.0):
+        return False, 0.0, 0.0, 0.0, 0.0
+    s = np.float32(1.0) if D > 0.0 else np.float32(-1.0)
+    for k in range(3):
+        val = e[k] * s
+        if val < 0.0:
+            return False, 0.0, 0.0, 0.0, 0.0
+        if val == 0.0 and not _top_left(na[k] * s, nb_[k] * s):
+            return False, 0.0, 0.0, 0.0, 0.0
+    tot = e[0] + e[1] + e[2]
+    if tot == 0.0:
+        return False, 0.0, 0.0, 0.0, 0.0
+    z = (e[0] * (p0[tri, 0, 2] + t * dp[tri, 0, 2]) + e[1] * (p0[tri, 1, 2] + t * dp[tri, 1, 2])
+         + e[2] * (p0[tri, 2, 2] + t * dp[tri, 2, 2])) / D
+    if not (z >= -1.0 and z <= 1.0):
+        return False, 0.0, 0.0, 0.0, 0.0
+    inv = np.float32(1.0) / tot
+    return True, e[0] * inv, e[1] * inv, e[2] * inv, z
+
+
+@nb.njit(cache=True)
+def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, noread_in,
+                       tile_size, width, height, spp, sx, sy, su, sv, st,
+                       p0, dp, l0, dl, backface_culling,
+                       out_tri, out_pix, out_sidx, out_z, out_b0, out_b1, out_b2, out_noread, ops, events):
+    """Range lookup on t-ordered samples and exact 5D inside tests (002 §5; 004 eq. 3, 10-13)."""
+    n = 0
+    for i in range(tri_ids.shape[0]):
+        tri = tri_ids[i]
+        ta = t_lo[i]
+        tb = t_hi[i]
+        ua = u_lo[i]
+        ub = u_hi[i]
+        va = v_lo[i]
+        vb = v_hi[i]
+        for py in range(tile_y[i] * tile_size, min((tile_y[i] + 1) * tile_size, height)):
+            for px in range(tile_x[i] * tile_size, min((tile_x[i] + 1) * tile_size, width)):
+                base = (py * width + px) * spp
+                events[EV_PIXELS] += 1
+                # binary searches for the first t >= ta and the first t > tb
+                lo = 0
+                hi = spp
+                while lo < hi:
+                    mid = (lo + hi) >> 1
+                    if st[base + mid] < ta:
+                        lo = mid + 1
+                    else:
+                        hi = mid
+                first = lo
+                hi = spp
+                while lo < hi:
+                    mid = (lo + hi) >> 1
+                    if st[base + mid] <= tb:
+                        lo = mid + 1
+                    else:
+                        hi = mid
+                last = lo
+                ops[OP_CMP] += 2 * (1 + int(np.log2(spp + 1)))
+                events[EV_INRANGE] += last - first
+                for s in range(first, last):
+                    k = base + s
+                    u = su[k]
+                    v = sv[k]
+                    if u < ua or u > ub or v < va or v > vb:
+                        continue
+                    events[EV_TESTED] += 1
+                    ok, b0, b1, b2, z = inside_test(p0, dp, l0, dl, tri, np.float32(px + sx[k]),
+                                                     np.float32(py + sy[k]), st[k], u, v, backface_culling)
+                    if ok:
+                        out_tri[n] = tri
+                        out_pix[n] = py * width + px
+                        out_sidx[n] = s
+                        out_z[n] = z
+                        out_b0[n] = b0
+                        out_b1[n] = b1
+                        out_b2[n] = b2
+                        out_noread[n] = noread_in[i]
+                        n += 1
+    events[EV_COVERED] += n
+    return n
+
+
+class SampleTester:
+    """Functional model of the sample tester unit."""
+
+    name = "sample_tester"
+    events = EVENTS
+
+    def __init__(self, config, table, samples, tile_size: int, backface_culling: bool):
+        self.config = config
+        self.table = table
+        self.samples = samples
+        self.tile_size = tile_size
+        self.backface_culling = backface_culling
+
+    def run(self, tiles: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+        s = self.samples
+        ts = self.tile_size
+        n = len(tiles["tri"])
+        cap = n * ts * ts * s.spp
+        out = {
+            "tri": np.empty(cap, np.int32), "pix": np.empty(cap, np.int32), "sidx": np.empty(cap, np.int32),
+            "z": np.empty(cap, np.float32), "b0": np.empty(cap, np.float32), "b1": np.empty(cap, np.float32),
+            "b2": np.empty(cap, np.float32), "noread": np.empty(cap, np.bool_),
+        }
+        ops = np.zeros(N_OPS, np.int64)
+        events = np.zeros(len(EVENTS), np.int64)
+        t = self.table
+        m = sample_test_kernel(tiles["tri"], tiles["tx"], tiles["ty"], tiles["t_lo"], tiles["t_hi"],
+                               tiles["u_lo"], tiles["u_hi"], tiles["v_lo"], tiles["v_hi"], tiles["noread"],
+                               ts, s.width, s.height, s.spp, s.x, s.y, s.u, s.v, s.t,
+                               t.p0_32, t.dp_32, t.l0_32, t.dl_32, self.backface_culling,
+                               out["tri"], out["pix"], out["sidx"], out["z"], out["b0"], out["b1"],
+                               out["b2"], out["noread"], ops, events)
+        tested = events[EV_TESTED]
+        ops[OP_MADD] += tested * TEST_OPS_MADD
+        ops[OP_MUL] += tested * TEST_OPS_MUL
+        ops[OP_CMP] += tested * 4
+        ops[OP_RCP] += m * COVER_OPS_RCP
+        ops[OP_MUL] += m * COVER_OPS_MUL
+        ops[OP_MADD] += m * COVER_OPS_MADD
+        return {k: v[:m].copy() for k, v in out.items()}, ops, events

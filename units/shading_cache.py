@@ -1,0 +1,302 @@
+"""Shading: a memoization shading cache, or one shader execution per sample.
+
+Implements PIPELINE.md §2.6 (000 §2 and §8; Ragan-Kelley et al. 2011).
+
+Cache mode (decoupled sampling): a covered sample takes its barycentric
+position on the triangle, projects that surface point with the reference
+camera (lens centre, mid-shutter t=0.5) and quantizes it to the shading grid
+(``shading_rate`` pixels per cell). The key (triangle, cell) is looked up in
+a set-associative cache with LRU or FIFO replacement; on a miss the shader
+runs once at the cell centre (barycentrics from the reference edge
+functions) and the result is stored. Samples at other times and lens
+positions that see the same surface point hit and reuse it.
+
+Per-sample mode: every covered sample is shaded at its own (t, u, v) and
+barycentrics, a 1:1 mapping (caustics, sampling).
+
+Conservative mode: the shader runs once per (triangle, pixel) record with
+the tile intervals (u^, v^, t^, z^) as inputs (000 §2).
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from pipeline_sim.counters import N_OPS, OP_ADD, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+from pipeline_sim.shaders import (IN_B, IN_DEPTH, IN_G, IN_MATERIAL, IN_NX, IN_NY, IN_NZ, IN_OBJECT, IN_PX,
+                                  IN_PY, IN_PZ, IN_R, IN_T, IN_T_HI, IN_T_LO, IN_TRIANGLE, IN_U, IN_U_HI,
+                                  IN_U_LO, IN_V, IN_V_HI, IN_V_LO, IN_X, IN_Y, IN_Z_HI, IN_Z_LO, N_INPUTS)
+
+EVENTS = ("lookups", "hits", "misses", "evictions", "shader_executions")
+EV_LOOKUP, EV_HIT, EV_MISS, EV_EVICT, EV_EXEC = range(len(EVENTS))
+
+REPL_LRU, REPL_FIFO = 0, 1
+HASH_MUL = np.uint64(0x9E3779B97F4A7C15)
+
+
+@nb.njit(cache=True)
+def cache_kernel(tri, b0, b1, b2, ref, rate, grid_w, grid_h, tags, stamps, entry_req, entry_color,
+                 clock, replacement, out_color, sample_req, req_entry, req_tri, req_l, ops, events):
+    """Shading-cache lookups in sample order (000 §2, §8; Ragan-Kelley et al. 2011).
+
+    Returns (number of shading requests, new clock). Hits on entries filled
+    in earlier batches copy the stored color into ``out_color``; other
+    samples point at a request of this batch through ``sample_req``.
+    """
+    nsets = tags.shape[0]
+    ways = tags.shape[1]
+    nreq = 0
+    for i in range(tri.shape[0]):
+        tr = tri[i]
+        # surface point seen by the reference camera (t = 0.5, lens centre)
+        X = b0[i] * ref[tr, 0, 0] + b1[i] * ref[tr, 1, 0] + b2[i] * ref[tr, 2, 0]
+        Y = b0[i] * ref[tr, 0, 1] + b1[i] * ref[tr, 1, 1] + b2[i] * ref[tr, 2, 1]
+        W = b0[i] * ref[tr, 0, 2] + b1[i] * ref[tr, 1, 2] + b2[i] * ref[tr, 2, 2]
+        ops[OP_MADD] += 9
+        cx = 0
+        cy = 0
+        centre_ok = False
+        if W > 1e-20:
+            inv = 1.0 / W
+            cx = int(np.floor(X * inv / rate))
+            cy = int(np.floor(Y * inv / rate))
+            cx = max(-1, min(grid_w, cx))
+            cy = max(-1, min(grid_h, cy))
+            centre_ok = True
+            ops[OP_RCP] += 1
+            ops[OP_MUL] += 4
+        key = np.int64(tr) * np.int64(1 << 32) + np.int64((cy + 1) * (grid_w + 2) + (cx + 1))
+        if not centre_ok:
+            key = -np.int64(i) - 2  # unique: never hits
+        h = (np.uint64(key) * HASH_MUL) >> np.uint64(33)
+        st = int(h % np.uint64(nsets))
+        events[EV_LOOKUP] += 1
+        clock += 1
+        hit_way = -1
+        for w in range(ways):
+            if tags[st, w] == key:
+                hit_way = w
+                break
+        ops[OP_CMP] += ways
+        if hit_way >= 0:
+            events[EV_HIT] += 1
+            e = st * ways + hit_way
+            if replacement == REPL_LRU:
+                stamps[st, hit_way] = clock
+            r = entry_req[e]
+            if r >= 0:
+                sample_req[i] = r
+            else:
+                sample_req[i] = -1
+                for c in range(4):
+                    out_color[i, c] = entry_color[e, c]
+            continue
+        events[EV_MISS] += 1
+        victim = 0
+        best = np.int64(1) << 62
+        for w in range(ways):
+            if tags[st, w] == -1:
+                victim = w
+                best = -1
+                break
+            if stamps[st, w] < best:
+                best = stamps[st, w]
+                victim = w
+        if best != -1:
+            events[EV_EVICT] += 1
+        tags[st, victim] = key
+        stamps[st, victim] = clock
+        e = st * ways + victim
+        entry_req[e] = nreq
+        req_entry[nreq] = e
+        req_tri[nreq] = tr
+        # barycentrics of the cell centre on the reference triangle
+        if centre_ok:
+            sx = (cx + 0.5) * rate
+            sy = (cy + 0.5) * rate
+            l = np.empty(3)
+            for k in range(3):
+                ii = (k + 1) % 3
+                jj = (k + 2) % 3
+                a = ref[tr, jj, 1] * ref[tr, ii, 2] - ref[tr, jj, 2] * ref[tr, ii, 1]
+                b = ref[tr, jj, 2] * ref[tr, ii, 0] - ref[tr, jj, 0] * ref[tr, ii, 2]
+                c = ref[tr, jj, 0] * ref[tr, ii, 1] - ref[tr, jj, 1] * ref[tr, ii, 0]
+                l[k] = a * sx + b * sy + c
+            tot = l[0] + l[1] + l[2]
+            ops[OP_MUL] += 9
+            ops[OP_MADD] += 12
+            ops[OP_RCP] += 1
+            if tot != 0.0 and np.isfinite(tot):
+                # clamp to the triangle so attributes stay in range
+                for k in range(3):
+                    l[k] = max(0.0, l[k] / tot)
+                s = l[0] + l[1] + l[2]
+                if s > 0:
+                    for k in range(3):
+                        req_l[k, nreq] = l[k] / s
+                else:
+                    req_l[0, nreq] = b0[i]
+                    req_l[1, nreq] = b1[i]
+                    req_l[2, nreq] = b2[i]
+            else:
+                req_l[0, nreq] = b0[i]
+                req_l[1, nreq] = b1[i]
+                req_l[2, nreq] = b2[i]
+        else:
+            req_l[0, nreq] = b0[i]
+            req_l[1, nreq] = b1[i]
+            req_l[2, nreq] = b2[i]
+        sample_req[i] = nreq
+        nreq += 1
+    events[EV_EXEC] += nreq
+    return nreq, clock
+
+
+@nb.njit(cache=True)
+def interpolate_kernel(req_tri, req_l, req_t, req_u, req_v, req_x, req_y, req_depth,
+                       pos, nrm, color, material, object_id, inputs, ops):
+    """Perspective-correct attribute interpolation for shading requests (002 §8 'interpolation setup')."""
+    for i in range(req_tri.shape[0]):
+        tr = req_tri[i]
+        t = req_t[i]
+        for c in range(3):
+            p = 0.0
+            n = 0.0
+            col = 0.0
+            for k in range(3):
+                lk = req_l[k, i]
+                p += lk * (pos[0, tr, k, c] + t * (pos[1, tr, k, c] - pos[0, tr, k, c]))
+                n += lk * (nrm[0, tr, k, c] + t * (nrm[1, tr, k, c] - nrm[0, tr, k, c]))
+                col += lk * color[tr, k, c]
+            inputs[IN_PX + c, i] = p
+            inputs[IN_NX + c, i] = n
+            inputs[IN_R + c, i] = col
+        nl = np.sqrt(inputs[IN_NX, i] ** 2 + inputs[IN_NY, i] ** 2 + inputs[IN_NZ, i] ** 2)
+        if nl > 0:
+            for c in range(3):
+                inputs[IN_NX + c, i] /= nl
+        inputs[IN_T, i] = t
+        inputs[IN_U, i] = req_u[i]
+        inputs[IN_V, i] = req_v[i]
+        inputs[IN_X, i] = req_x[i]
+        inputs[IN_Y, i] = req_y[i]
+        inputs[IN_DEPTH, i] = req_depth[i]
+        inputs[IN_MATERIAL, i] = material[tr]
+        inputs[IN_OBJECT, i] = object_id[tr]
+        inputs[IN_TRIANGLE, i] = tr
+    n = req_tri.shape[0]
+    ops[OP_MADD] += n * 27
+    ops[OP_MUL] += n * 6
+    ops[OP_RCP] += n
+
+
+class Shading:
+    """Functional model of the shading unit: cache (or 1:1) plus shader cores."""
+
+    name = "shading"
+    events = EVENTS
+
+    def __init__(self, config, draw, table, samples, shader, params: np.ndarray, texture: np.ndarray | None,
+                 conservative: bool):
+        self.config = config
+        self.draw = draw
+        self.table = table
+        self.samples = samples
+        self.shader = shader
+        self.params = np.ascontiguousarray(params, dtype=np.float32)
+        self.texture = (np.zeros((1, 1, 4), np.float32) if texture is None
+                        else np.ascontiguousarray(texture, dtype=np.float32))
+        self.conservative = conservative
+        self.cached = config.mode == "cache" and not conservative
+        ways = config.cache_ways
+        nsets = config.cache_entries // ways
+        self.tags = np.full((nsets, ways), -1, np.int64)
+        self.stamps = np.zeros((nsets, ways), np.int64)
+        self.entry_req = np.full(nsets * ways, -1, np.int32)
+        self.entry_color = np.zeros((nsets * ways, 4), np.float32)
+        self.clock = 0
+        self.grid_w = int(np.ceil(draw.width / config.shading_rate))
+        self.grid_h = int(np.ceil(draw.height / config.shading_rate))
+
+    def _shade(self, inputs: np.ndarray) -> np.ndarray:
+        out = np.zeros((inputs.shape[1], 4), np.float32)
+        if inputs.shape[1]:
+            self.shader(inputs, self.params, self.texture, out)
+        return out
+
+    def run(self, batch: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+        ops = np.zeros(N_OPS, np.int64)
+        events = np.zeros(len(EVENTS), np.int64)
+        if self.conservative:
+            return self._run_conservative(batch, ops, events)
+        s = self.samples
+        n = len(batch["tri"])
+        k = batch["pix"].astype(np.int64) * s.spp + batch["sidx"]
+        st, su, sv = s.t[k], s.u[k], s.v[k]
+        py, px = np.divmod(batch["pix"], s.width)
+        color = np.zeros((n, 4), np.float32)
+        if self.cached:
+            sample_req = np.empty(n, np.int32)
+            req_entry = np.empty(n, np.int32)
+            req_tri = np.empty(n, np.int32)
+            req_l = np.empty((3, n), np.float64)
+            nreq, self.clock = cache_kernel(
+                batch["tri"], batch["b0"], batch["b1"], batch["b2"], self.table.ref, self.config.shading_rate,
+                self.grid_w, self.grid_h, self.tags, self.stamps, self.entry_req, self.entry_color, self.clock,
+                REPL_LRU if self.config.replacement == "lru" else REPL_FIFO, color, sample_req, req_entry,
+                req_tri, req_l, ops, events)
+            first = np.full(nreq, -1, np.int64)
+            has = sample_req >= 0
+            idx = np.nonzero(has)[0]
+            first_idx = np.unique(sample_req[idx], return_index=True)[1]
+            first[:] = idx[first_idx]
+            half = np.full(nreq, 0.5, np.float32)
+            zero = np.zeros(nreq, np.float32)
+            rate = self.config.shading_rate
+            inputs = np.zeros((N_INPUTS, nreq), np.float32)
+            interpolate_kernel(req_tri[:nreq], req_l[:, :nreq], half, zero, zero,
+                               (px[first] + 0.5).astype(np.float32), (py[first] + 0.5).astype(np.float32),
+                               batch["z"][first], self.draw.pos, self.draw.nrm, self.draw.color,
+                               self.draw.material, self.draw.object_id, inputs, ops)
+            shaded = self._shade(inputs)
+            color[has] = shaded[sample_req[has]]
+            # an entry refilled within the batch keeps its last request's color
+            entries, last = np.unique(req_entry[:nreq][::-1], return_index=True)
+            self.entry_color[entries] = shaded[nreq - 1 - last]
+            self.entry_req[entries] = -1
+        else:
+            req_l = np.stack([batch["b0"], batch["b1"], batch["b2"]]).astype(np.float64)
+            inputs = np.zeros((N_INPUTS, n), np.float32)
+            interpolate_kernel(batch["tri"], req_l, st, su, sv,
+                               (px + s.x[k]).astype(np.float32), (py + s.y[k]).astype(np.float32), batch["z"],
+                               self.draw.pos, self.draw.nrm, self.draw.color, self.draw.material,
+                               self.draw.object_id, inputs, ops)
+            color = self._shade(inputs)
+            events[EV_LOOKUP] += n
+            events[EV_EXEC] += n
+        out = dict(batch)
+        out["color"] = color
+        return out, ops, events
+
+    def _run_conservative(self, batch, ops, events):
+        n = len(batch["tri"])
+        inputs = np.zeros((N_INPUTS, n), np.float32)
+        tri = batch["tri"]
+        inputs[IN_X] = batch["tx"] + 0.5
+        inputs[IN_Y] = batch["ty"] + 0.5
+        inputs[IN_MATERIAL] = self.draw.material[tri]
+        inputs[IN_OBJECT] = self.draw.object_id[tri]
+        inputs[IN_TRIANGLE] = tri
+        for row, name in ((IN_T_LO, "t_lo"), (IN_T_HI, "t_hi"), (IN_U_LO, "u_lo"), (IN_U_HI, "u_hi"),
+                          (IN_V_LO, "v_lo"), (IN_V_HI, "v_hi"), (IN_Z_LO, "z_lo"), (IN_Z_HI, "z_hi")):
+            inputs[row] = batch[name]
+        inputs[IN_T] = 0.5 * (batch["t_lo"] + batch["t_hi"])
+        inputs[IN_DEPTH] = batch["z_lo"]
+        inputs[IN_R:IN_B + 1] = self.draw.color[tri].mean(axis=1).T
+        color = self._shade(inputs)
+        events[EV_EXEC] += n
+        out = {"tri": tri, "pix": (batch["ty"] * self.draw.width + batch["tx"]).astype(np.int32),
+               "sidx": np.zeros(n, np.int32), "z": batch["z_lo"].astype(np.float32),
+               "noread": batch.get("noread", np.zeros(n, np.bool_)), "color": color}
+        return out, ops, events

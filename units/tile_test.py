@@ -1,0 +1,277 @@
+"""Tile test: a (triangle, tile) pair to conservative intervals (u^, v^, t^, z^).
+
+Implements PIPELINE.md §2.3:
+
+* t^ from the moving axis-aligned box in 2DH against the four tile frustum
+  planes (002 §4.1, eq. 1-2); the box includes the lens shift at u, v = +-1,
+  so it bounds the triangle at every lens position;
+* intersected with the linearized moving-edge test (002 §4.2, eq. 8-9) for
+  motion-only triangles of constant facing;
+* lens intervals u^, v^: for each vertex at the two ends of t^, the screen
+  position x = (X + u LX) / W is a line in u (the dual-space view of Laine et
+  al. 2011 that 001 §2 describes); a sample at lens u can be covered only if
+  some vertex lies right of the tile's left side and some vertex left of its
+  right side, which bounds u to an interval;
+* z^ from the vertex depths at the ends of t^ (the near and far faces of the
+  moving box, 000 Appendix A first test): the depth of any point of the
+  triangle is a convex combination of vertex depths while w > 0.
+
+Every bound is widened by a small margin so floating-point rounding can only
+make it looser, never tighter.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from pipeline_sim.counters import N_OPS, OP_ADD, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+from units.triangle_setup import FLAG_EDGE, FLAG_LENS, FLAG_WPOS
+
+EVENTS = ("rejected_box", "rejected_edge", "rejected_lens", "rejected_frustum_time", "accepted")
+EV_REJ_BOX, EV_REJ_EDGE, EV_REJ_LENS, EV_REJ_TIME, EV_ACCEPT = range(len(EVENTS))
+
+MARGIN_PX = 1.0 / 64.0  # pixel margin around every tile, absorbs rounding
+
+
+@nb.njit(cache=True)
+def box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ta, tb, ops):
+    """Moving 2DH box of the triangle against the tile frustum planes (002 eq. 1-2).
+
+    Returns the sub-interval of [ta, tb] where the box may overlap the tile
+    [x0, x1] x [y0, y1] (pixel units, already widened); empty when lo > hi.
+    """
+    xmn = np.empty(2)
+    xmx = np.empty(2)
+    ymn = np.empty(2)
+    ymx = np.empty(2)
+    wmn = np.empty(2)
+    wmx = np.empty(2)
+    for s in range(2):
+        xmn[s] = np.inf
+        xmx[s] = -np.inf
+        ymn[s] = np.inf
+        ymx[s] = -np.inf
+        wmn[s] = np.inf
+        wmx[s] = -np.inf
+        for k in range(3):
+            X = p0[tri, k, 0] + s * dp[tri, k, 0]
+            Y = p0[tri, k, 1] + s * dp[tri, k, 1]
+            W = p0[tri, k, 3] + s * dp[tri, k, 3]
+            LX = abs(l0[tri, k, 0] + s * dl[tri, k, 0])
+            LY = abs(l0[tri, k, 1] + s * dl[tri, k, 1])
+            xmn[s] = min(xmn[s], X - LX)
+            xmx[s] = max(xmx[s], X + LX)
+            ymn[s] = min(ymn[s], Y - LY)
+            ymx[s] = max(ymx[s], Y + LY)
+            wmn[s] = min(wmn[s], W)
+            wmx[s] = max(wmx[s], W)
+    ops[OP_CMP] += 36
+    lo = ta
+    hi = tb
+    for plane in range(4):
+        d = np.empty(2)
+        for s in range(2):
+            if plane == 0:  # left side: outside when x0 W - X > 0
+                d[s] = x0 * (wmn[s] if x0 > 0 else wmx[s]) - xmx[s]
+            elif plane == 1:  # right side: outside when X - x1 W > 0
+                d[s] = xmn[s] - x1 * (wmx[s] if x1 > 0 else wmn[s])
+            elif plane == 2:  # top
+                d[s] = y0 * (wmn[s] if y0 > 0 else wmx[s]) - ymx[s]
+            else:  # bottom
+                d[s] = ymn[s] - y1 * (wmx[s] if y1 > 0 else wmn[s])
+        ops[OP_MADD] += 2
+        ops[OP_CMP] += 2
+        if d[0] > 0.0 and d[1] > 0.0:
+            return 1.0, 0.0
+        if d[0] > 0.0:
+            t = d[0] / (d[0] - d[1])
+            lo = max(lo, t)
+            ops[OP_RCP] += 1
+            ops[OP_MUL] += 1
+        elif d[1] > 0.0:
+            t = d[0] / (d[0] - d[1])
+            hi = min(hi, t)
+            ops[OP_RCP] += 1
+            ops[OP_MUL] += 1
+        if lo > hi:
+            return lo, hi
+    return lo, hi
+
+
+@nb.njit(cache=True)
+def _edge_time_interval(edge_h, edge_gamma, tri, x0, x1, y0, y1, lo, hi, ops):
+    """Linearized moving-edge test (002 eq. 8-9); narrows [lo, hi]."""
+    for k in range(3):
+        hx = edge_h[tri, k, 0]
+        hy = edge_h[tri, k, 1]
+        hw = edge_h[tri, k, 2]
+        sx = x1 if hx > 0 else x0
+        sy = y1 if hy > 0 else y0
+        o = hx * sx + hy * sy + hw
+        o += 1e-9 * (abs(hx * sx) + abs(hy * sy) + abs(hw))
+        gam = edge_gamma[tri, k]
+        ops[OP_MADD] += 2
+        ops[OP_CMP] += 3
+        if gam > 0.0:
+            lo = max(lo, -o / gam)
+        elif gam < 0.0:
+            hi = min(hi, -o / gam)
+        elif o < 0.0:
+            return 1.0, 0.0
+        if lo > hi:
+            return lo, hi
+    return lo, hi
+
+
+@nb.njit(cache=True)
+def _lens_interval(p0, dp, l0, dl, tri, axis, a0, a1, ta, tb, ops):
+    """Interval of the lens coordinate (u for axis 0, v for axis 1) that can
+    put a sample of the tile span [a0, a1] inside the triangle; needs w > 0."""
+    # condition A: some vertex at >= a0 ; condition B: some vertex at <= a1
+    lo_all = -1.0
+    hi_all = 1.0
+    for cond in range(2):
+        edge = a0 if cond == 0 else a1
+        left_end = -np.inf  # union of (-inf, e]
+        right_start = np.inf  # union of [s, inf)
+        everything = False
+        for s in range(2):
+            t = ta if s == 0 else tb
+            for k in range(3):
+                W = p0[tri, k, 3] + t * dp[tri, k, 3]
+                X = p0[tri, k, axis] + t * dp[tri, k, axis]
+                L = l0[tri, k, axis] + t * dl[tri, k, axis]
+                alpha = X / W
+                beta = L / W
+                # A: alpha + beta u >= edge ; B: alpha + beta u <= edge
+                diff = edge - alpha
+                if cond == 1:
+                    diff = -diff
+                    beta = -beta
+                # now need beta u >= diff
+                if beta == 0.0:
+                    if diff <= 0.0:
+                        everything = True
+                elif beta > 0.0:
+                    right_start = min(right_start, diff / beta)
+                else:
+                    left_end = max(left_end, diff / beta)
+        ops[OP_RCP] += 6
+        ops[OP_MUL] += 12
+        ops[OP_MADD] += 18
+        ops[OP_CMP] += 12
+        if everything:
+            continue
+        if left_end == -np.inf and right_start == np.inf:
+            return 1.0, -1.0
+        if left_end == -np.inf:
+            lo_c, hi_c = right_start, 1.0
+        elif right_start == np.inf:
+            lo_c, hi_c = -1.0, left_end
+        elif left_end >= right_start:
+            lo_c, hi_c = -1.0, 1.0
+        else:
+            lo_c, hi_c = -1.0, 1.0
+        pad = 1e-7 * (1.0 + abs(lo_c) + abs(hi_c))
+        lo_all = max(lo_all, lo_c - pad)
+        hi_all = min(hi_all, hi_c + pad)
+    return max(lo_all, -1.0), min(hi_all, 1.0)
+
+
+@nb.njit(cache=True)
+def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, edge_test, lens_bounds,
+                     p0, dp, l0, dl, t_span, flags, edge_h, edge_gamma,
+                     out_keep, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, ops, events):
+    """Test each (triangle, tile) record; fill its intervals and ``out_keep``.
+
+    002 §4.1-4.2 (t^), lens bounds (u^, v^), 000 App. A (z^).
+    """
+    for i in range(tri_ids.shape[0]):
+        tri = tri_ids[i]
+        fl = flags[tri]
+        x0 = tile_x[i] * tile_size - MARGIN_PX
+        x1 = min((tile_x[i] + 1) * tile_size, width) + MARGIN_PX
+        y0 = tile_y[i] * tile_size - MARGIN_PX
+        y1 = min((tile_y[i] + 1) * tile_size, height) + MARGIN_PX
+        ta = t_span[tri, 0]
+        tb = t_span[tri, 1]
+        lo, hi = box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ta, tb, ops)
+        out_keep[i] = False
+        if lo > hi:
+            events[EV_REJ_BOX] += 1
+            continue
+        if edge_test and (fl & FLAG_EDGE) != 0:
+            lo, hi = _edge_time_interval(edge_h, edge_gamma, tri, x0, x1, y0, y1, lo, hi, ops)
+            if lo > hi:
+                events[EV_REJ_EDGE] += 1
+                continue
+        ulo, uhi, vlo, vhi = -1.0, 1.0, -1.0, 1.0
+        if (fl & FLAG_LENS) == 0:
+            ulo, uhi, vlo, vhi = 0.0, 0.0, 0.0, 0.0
+        elif lens_bounds and (fl & FLAG_WPOS) != 0:
+            ulo, uhi = _lens_interval(p0, dp, l0, dl, tri, 0, x0, x1, lo, hi, ops)
+            if ulo > uhi:
+                events[EV_REJ_LENS] += 1
+                continue
+            vlo, vhi = _lens_interval(p0, dp, l0, dl, tri, 1, y0, y1, lo, hi, ops)
+            if vlo > vhi:
+                events[EV_REJ_LENS] += 1
+                continue
+        zl, zh = -1.0, 1.0
+        if (fl & FLAG_WPOS) != 0:
+            zl, zh = np.inf, -np.inf
+            for s in range(2):
+                t = lo if s == 0 else hi
+                for k in range(3):
+                    z = (p0[tri, k, 2] + t * dp[tri, k, 2]) / (p0[tri, k, 3] + t * dp[tri, k, 3])
+                    zl = min(zl, z)
+                    zh = max(zh, z)
+            pad = 1e-6 * (1.0 + abs(zl) + abs(zh))
+            zl = max(-1.0, zl - pad)
+            zh = min(1.0, zh + pad)
+            ops[OP_MADD] += 12
+            ops[OP_RCP] += 6
+            ops[OP_MUL] += 6
+            ops[OP_CMP] += 12
+        out_keep[i] = True
+        events[EV_ACCEPT] += 1
+        t_lo[i] = lo
+        t_hi[i] = hi
+        u_lo[i] = ulo
+        u_hi[i] = uhi
+        v_lo[i] = vlo
+        v_hi[i] = vhi
+        z_lo[i] = zl
+        z_hi[i] = zh
+
+
+class TileTest:
+    """Functional model of the tile test unit."""
+
+    name = "tile_test"
+    events = EVENTS
+
+    def __init__(self, config, table, tile_size: int, width: int, height: int):
+        self.config = config
+        self.table = table
+        self.tile_size = tile_size
+        self.width = width
+        self.height = height
+
+    def run(self, tiles: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+        """Test a batch of tile records; return the survivors with intervals."""
+        n = len(tiles["tri"])
+        keep = np.zeros(n, np.bool_)
+        iv = {name: np.empty(n) for name in ("t_lo", "t_hi", "u_lo", "u_hi", "v_lo", "v_hi", "z_lo", "z_hi")}
+        ops = np.zeros(N_OPS, np.int64)
+        events = np.zeros(len(EVENTS), np.int64)
+        t = self.table
+        tile_test_kernel(tiles["tri"], tiles["tx"], tiles["ty"], self.tile_size, self.width, self.height,
+                         self.config.edge_test, self.config.lens_bounds, t.p0, t.dp, t.l0, t.dl,
+                         t.t_span, t.flags, t.edge_h, t.edge_gamma, keep,
+                         iv["t_lo"], iv["t_hi"], iv["u_lo"], iv["u_hi"], iv["v_lo"], iv["v_hi"],
+                         iv["z_lo"], iv["z_hi"], ops, events)
+        out = {name: arr[keep] for name, arr in tiles.items()}
+        out.update({name: arr[keep] for name, arr in iv.items()})
+        return out, ops, events

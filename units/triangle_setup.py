@@ -1,0 +1,396 @@
+"""Triangle setup: moving, defocused triangles to per-triangle constants.
+
+Implements PIPELINE.md §2.1. For each triangle of a batch:
+
+* clip-space vertices at t=0 and t=1 to pixel-space 2D homogeneous
+  coordinates (X, Y, W) with row 0 at the top, pixel centres at +0.5, and the
+  per-vertex lens shift (circle of confusion, linear in w; 001 §3.1);
+* temporal frustum culling: the time span [ts, te] in which any vertex, at
+  any lens position, can be inside all six clip planes (002 §3);
+* conservative facing: the 2DH determinant D(t, u, v) = p0 . (p2 x p1) is a
+  cubic in t and bilinear in (u, v); its Bernstein coefficients bound it, so
+  a triangle is culled as back-facing only if D < 0 everywhere (004 §4.3,
+  Munkberg and Akenine-Moller 2011) and dropped as degenerate if D == 0
+  everywhere;
+* conservative screen bounds: the vertices at ts and te, widened by the lens
+  shift at u, v = +-1 (exact extremes, since x = (X + u LX) / W is monotone in
+  t and linear in u while W > 0), or the whole screen when a vertex path
+  crosses w = 0 during the shutter (002 §3);
+* the linearized moving-edge constants h and gamma of 002 eq. 4-7 (for
+  motion-only triangles of constant facing), with edge functions
+  e_k(x, y, t) = (f t^2 + g t + h) . (x, y, 1) from 004 eq. 3-5.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from pipeline_sim.counters import N_OPS, OP_ADD, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+
+EVENTS = (
+    "culled_frustum",
+    "culled_backface",
+    "degenerate",
+    "crossing_w0",
+    "moving",
+    "defocused",
+    "mixed_facing",
+)
+EV_FRUSTUM, EV_BACKFACE, EV_DEGENERATE, EV_W0, EV_MOVING, EV_DEFOCUS, EV_MIXED = range(len(EVENTS))
+
+ST_OK, ST_FRUSTUM, ST_BACKFACE, ST_DEGENERATE = 0, 1, 2, 3
+W_EPS = 1e-9  # w below this counts as crossing the camera plane
+
+
+@dataclass
+class TriangleTable:
+    """Per-triangle constants written by setup and read by the later units.
+
+    Pixel-space 2DH vertices: ``p0`` (N,3,4) holds (X, Y, Z, W) at t=0 and
+    ``dp`` the change to t=1; ``l0``/``dl`` (N,3,2) the lens shift (LX, LY)
+    at t=0 and its change. ``*32`` are float32 copies for the sample tester.
+    """
+
+    p0: np.ndarray
+    dp: np.ndarray
+    l0: np.ndarray
+    dl: np.ndarray
+    p0_32: np.ndarray
+    dp_32: np.ndarray
+    l0_32: np.ndarray
+    dl_32: np.ndarray
+    t_span: np.ndarray  # (N,2) [ts, te]
+    bounds: np.ndarray  # (N,4) int32 px0, px1, py0, py1 (exclusive ends)
+    facing: np.ndarray  # (N,) int8: +1 always front, -1 always back, 0 mixed
+    flags: np.ndarray  # (N,) int8: bit0 lens live, bit1 w > 0 all shutter, bit2 edge test valid, bit3 moving
+    edge_h: np.ndarray  # (N,3,3) h of each edge, facing-normalized
+    edge_gamma: np.ndarray  # (N,3) upper slope bound Gamma per edge
+    ref: np.ndarray  # (N,3,3) float32 reference-camera (t=0.5, lens centre) X, Y, W
+
+    @classmethod
+    def allocate(cls, n: int) -> "TriangleTable":
+        f64, f32 = np.float64, np.float32
+        return cls(
+            p0=np.zeros((n, 3, 4), f64), dp=np.zeros((n, 3, 4), f64),
+            l0=np.zeros((n, 3, 2), f64), dl=np.zeros((n, 3, 2), f64),
+            p0_32=np.zeros((n, 3, 4), f32), dp_32=np.zeros((n, 3, 4), f32),
+            l0_32=np.zeros((n, 3, 2), f32), dl_32=np.zeros((n, 3, 2), f32),
+            t_span=np.zeros((n, 2), f64), bounds=np.zeros((n, 4), np.int32),
+            facing=np.zeros(n, np.int8), flags=np.zeros(n, np.int8),
+            edge_h=np.zeros((n, 3, 3), f64), edge_gamma=np.zeros((n, 3), f64),
+            ref=np.zeros((n, 3, 3), f32),
+        )
+
+
+FLAG_LENS, FLAG_WPOS, FLAG_EDGE, FLAG_MOVING = 1, 2, 4, 8
+
+
+@nb.njit(cache=True)
+def _interval_hull_nonneg(a, b, lo, hi):
+    """Grow [lo, hi] by the part of [0,1] where a + b t >= 0 (hull of the union)."""
+    end = a + b
+    if a >= 0.0 and end >= 0.0:
+        return 0.0, 1.0
+    if a < 0.0 and end < 0.0:
+        return lo, hi
+    tc = a / (a - end)
+    if a >= 0.0:  # non-negative on [0, tc]
+        return min(lo, 0.0), max(hi, min(1.0, tc * (1.0 + 1e-9) + 1e-12))
+    return min(lo, max(0.0, tc * (1.0 - 1e-9) - 1e-12)), max(hi, 1.0)
+
+
+@nb.njit(cache=True)
+def _det(x0, y0, w0, x1, y1, w1, x2, y2, w2):
+    # D = p0 . (p2 x p1); positive for front-facing (counter-clockwise in NDC)
+    cx = y2 * w1 - w2 * y1
+    cy = w2 * x1 - x2 * w1
+    cw = x2 * y1 - y2 * x1
+    return x0 * cx + y0 * cy + w0 * cw
+
+
+@nb.njit(cache=True)
+def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_culling,
+                 p0, dp, l0, dl, p0_32, dp_32, l0_32, dl_32, t_span, bounds, facing, flags,
+                 edge_h, edge_gamma, ref, status, ops, events):
+    """Triangle setup for the triangles ``ids`` (PIPELINE §2.1; 002 §3-4, 004 eq. 3-5).
+
+    Writes the per-triangle tables in place, ``status`` per batch item and
+    accumulates ``ops`` (arithmetic classes) and ``events``.
+    """
+    hx = 0.5 * width
+    hy = 0.5 * height
+    px = np.empty((2, 3, 4))  # pixel-space (X, Y, Z, W) at t=0, t=1
+    lx = np.empty((2, 3, 2))
+    for b in range(ids.shape[0]):
+        tri = ids[b]
+        moving = False
+        has_lens = False
+        for s in range(2):
+            src = q if s == 0 else r
+            for k in range(3):
+                x = src[tri, k, 0]
+                y = src[tri, k, 1]
+                z = src[tri, k, 2]
+                w = src[tri, k, 3]
+                px[s, k, 0] = (x + w) * hx
+                px[s, k, 1] = (w - y) * hy
+                px[s, k, 2] = z
+                px[s, k, 3] = w
+                lx[s, k, 0] = lens_x[tri, k, s] * hx
+                lx[s, k, 1] = -lens_y[tri, k, s] * hy
+                if lx[s, k, 0] != 0.0 or lx[s, k, 1] != 0.0:
+                    has_lens = True
+        for k in range(3):
+            for c in range(4):
+                if px[1, k, c] != px[0, k, c]:
+                    moving = True
+        ops[OP_MADD] += 24
+        ops[OP_MUL] += 12
+        if moving:
+            events[EV_MOVING] += 1
+        if has_lens:
+            events[EV_DEFOCUS] += 1
+        for k in range(3):
+            for c in range(4):
+                p0[tri, k, c] = px[0, k, c]
+                dp[tri, k, c] = px[1, k, c] - px[0, k, c]
+                p0_32[tri, k, c] = np.float32(px[0, k, c])
+                dp_32[tri, k, c] = np.float32(px[1, k, c] - px[0, k, c])
+            for c in range(2):
+                l0[tri, k, c] = lx[0, k, c]
+                dl[tri, k, c] = lx[1, k, c] - lx[0, k, c]
+                l0_32[tri, k, c] = np.float32(lx[0, k, c])
+                dl_32[tri, k, c] = np.float32(lx[1, k, c] - lx[0, k, c])
+            for c in range(3):
+                cc = c if c < 2 else 3
+                ref[tri, k, c] = np.float32(0.5 * (px[0, k, cc] + px[1, k, cc]))
+
+        # ---- temporal frustum culling (002 §3), lens-conservative ----------
+        ts = 0.0
+        te = 1.0
+        for plane in range(6):
+            lo = 2.0
+            hi = -1.0
+            for k in range(3):
+                g = np.empty(2)
+                ls = np.empty(2)
+                for s in range(2):
+                    X = px[s, k, 0]
+                    Y = px[s, k, 1]
+                    Z = px[s, k, 2]
+                    W = px[s, k, 3]
+                    if plane == 0:
+                        g[s] = X
+                        ls[s] = abs(lx[s, k, 0])
+                    elif plane == 1:
+                        g[s] = width * W - X
+                        ls[s] = abs(lx[s, k, 0])
+                    elif plane == 2:
+                        g[s] = Y
+                        ls[s] = abs(lx[s, k, 1])
+                    elif plane == 3:
+                        g[s] = height * W - Y
+                        ls[s] = abs(lx[s, k, 1])
+                    elif plane == 4:
+                        g[s] = Z + W
+                        ls[s] = 0.0
+                    else:
+                        g[s] = W - Z
+                        ls[s] = 0.0
+                # max over u in [-1, 1] of g + u * L(t) is the max of two lines
+                for sign in (-1.0, 1.0):
+                    a = g[0] + sign * (lx[0, k, 0] if plane < 2 else (lx[0, k, 1] if plane < 4 else 0.0))
+                    e = g[1] + sign * (lx[1, k, 0] if plane < 2 else (lx[1, k, 1] if plane < 4 else 0.0))
+                    # tolerance: relative to the magnitude of the terms
+                    tol = 1e-9 * (abs(g[0]) + abs(g[1]) + ls[0] + ls[1] + abs(px[0, k, 3]) + abs(px[1, k, 3]))
+                    lo, hi = _interval_hull_nonneg(a + tol, e + tol - (a + tol), lo, hi)
+            ops[OP_MADD] += 12
+            ops[OP_CMP] += 12
+            ts = max(ts, lo)
+            te = min(te, hi)
+        if ts > te:
+            status[b] = ST_FRUSTUM
+            events[EV_FRUSTUM] += 1
+            continue
+        t_span[tri, 0] = ts
+        t_span[tri, 1] = te
+
+        # ---- conservative facing: Bernstein bounds of D(t, u, v) ------------
+        nu = 2 if has_lens else 1
+        bern_min = np.inf
+        bern_max = -np.inf
+        scale = 0.0
+        for iu in range(nu):
+            u = (2.0 * iu - 1.0) if has_lens else 0.0
+            for iv in range(nu):
+                v = (2.0 * iv - 1.0) if has_lens else 0.0
+                f = np.empty(4)
+                for it in range(4 if moving else 1):
+                    t = it / 3.0
+                    vx = np.empty(3)
+                    vy = np.empty(3)
+                    vw = np.empty(3)
+                    for k in range(3):
+                        vx[k] = px[0, k, 0] + t * (px[1, k, 0] - px[0, k, 0]) + u * (lx[0, k, 0] + t * (lx[1, k, 0] - lx[0, k, 0]))
+                        vy[k] = px[0, k, 1] + t * (px[1, k, 1] - px[0, k, 1]) + v * (lx[0, k, 1] + t * (lx[1, k, 1] - lx[0, k, 1]))
+                        vw[k] = px[0, k, 3] + t * (px[1, k, 3] - px[0, k, 3])
+                        scale = max(scale, abs(vx[k]) + abs(vy[k]) + abs(vw[k]))
+                    f[it] = _det(vx[0], vy[0], vw[0], vx[1], vy[1], vw[1], vx[2], vy[2], vw[2])
+                if moving:
+                    c1 = (-5.0 * f[0] + 18.0 * f[1] - 9.0 * f[2] + 2.0 * f[3]) / 6.0
+                    c2 = (2.0 * f[0] - 9.0 * f[1] + 18.0 * f[2] - 5.0 * f[3]) / 6.0
+                    bern_min = min(bern_min, f[0], c1, c2, f[3])
+                    bern_max = max(bern_max, f[0], c1, c2, f[3])
+                else:
+                    bern_min = min(bern_min, f[0])
+                    bern_max = max(bern_max, f[0])
+        ops[OP_MADD] += (4 if moving else 1) * nu * nu * 15
+        ops[OP_MUL] += (4 if moving else 1) * nu * nu * 6
+        tol = 1e-12 * scale * scale * scale
+        if bern_max <= tol and bern_min >= -tol:
+            status[b] = ST_DEGENERATE
+            events[EV_DEGENERATE] += 1
+            continue
+        if bern_min > tol:
+            facing[tri] = 1
+        elif bern_max < -tol:
+            facing[tri] = -1
+        else:
+            facing[tri] = 0
+            events[EV_MIXED] += 1
+        if backface_culling and facing[tri] == -1:
+            status[b] = ST_BACKFACE
+            events[EV_BACKFACE] += 1
+            continue
+
+        # ---- conservative screen bounds ------------------------------------
+        wpos = True
+        for s in range(2):
+            for k in range(3):
+                wt = px[0, k, 3] + (ts if s == 0 else te) * (px[1, k, 3] - px[0, k, 3])
+                if not wt > W_EPS:
+                    wpos = False
+        fl = 0
+        if has_lens:
+            fl |= FLAG_LENS
+        if moving:
+            fl |= FLAG_MOVING
+        if wpos:
+            fl |= FLAG_WPOS
+            xmin = np.inf
+            xmax = -np.inf
+            ymin = np.inf
+            ymax = -np.inf
+            for s in range(2):
+                t = ts if s == 0 else te
+                for k in range(3):
+                    X = px[0, k, 0] + t * (px[1, k, 0] - px[0, k, 0])
+                    Y = px[0, k, 1] + t * (px[1, k, 1] - px[0, k, 1])
+                    W = px[0, k, 3] + t * (px[1, k, 3] - px[0, k, 3])
+                    LX = abs(lx[0, k, 0] + t * (lx[1, k, 0] - lx[0, k, 0]))
+                    LY = abs(lx[0, k, 1] + t * (lx[1, k, 1] - lx[0, k, 1]))
+                    inv = 1.0 / W
+                    xmin = min(xmin, (X - LX) * inv)
+                    xmax = max(xmax, (X + LX) * inv)
+                    ymin = min(ymin, (Y - LY) * inv)
+                    ymax = max(ymax, (Y + LY) * inv)
+            ops[OP_RCP] += 6
+            ops[OP_MUL] += 24
+            ops[OP_CMP] += 24
+            pad = 1e-3
+            bx0 = int(max(0.0, min(float(width), np.floor(xmin - pad))))
+            bx1 = int(max(0.0, min(float(width), np.ceil(xmax + pad))))
+            by0 = int(max(0.0, min(float(height), np.floor(ymin - pad))))
+            by1 = int(max(0.0, min(float(height), np.ceil(ymax + pad))))
+        else:
+            events[EV_W0] += 1
+            bx0, bx1, by0, by1 = 0, width, 0, height
+        if bx1 <= bx0 or by1 <= by0:
+            status[b] = ST_FRUSTUM
+            events[EV_FRUSTUM] += 1
+            continue
+        bounds[tri, 0] = bx0
+        bounds[tri, 1] = bx1
+        bounds[tri, 2] = by0
+        bounds[tri, 3] = by1
+
+        # ---- linearized moving edges (002 eq. 4-7), motion-only triangles --
+        if (not has_lens) and facing[tri] != 0:
+            sgn = float(facing[tri])
+            # bounds aligned to the tile grid: every tile sample lies inside S
+            sx0 = float((bx0 // tile_size) * tile_size)
+            sy0 = float((by0 // tile_size) * tile_size)
+            sx1 = float(((bx1 + tile_size - 1) // tile_size) * tile_size)
+            sy1 = float(((by1 + tile_size - 1) // tile_size) * tile_size)
+            for k in range(3):
+                i = (k + 1) % 3
+                j = (k + 2) % 3
+                qi = px[0, i]
+                qj = px[0, j]
+                di = px[1, i] - px[0, i]
+                dj = px[1, j] - px[0, j]
+                # n(t) = p_j(t) x p_i(t) over (X, Y, W) = f t^2 + g t + h
+                hv = np.empty(3)
+                fv = np.empty(3)
+                gv = np.empty(3)
+                _cross3(qj[0], qj[1], qj[3], qi[0], qi[1], qi[3], hv)
+                _cross3(dj[0], dj[1], dj[3], di[0], di[1], di[3], fv)
+                ga = np.empty(3)
+                gb = np.empty(3)
+                _cross3(qj[0], qj[1], qj[3], di[0], di[1], di[3], ga)
+                _cross3(dj[0], dj[1], dj[3], qi[0], qi[1], qi[3], gb)
+                for c in range(3):
+                    gv[c] = ga[c] + gb[c]
+                gam = -np.inf
+                for pass_ in range(2):
+                    ax = sgn * (gv[0] + (fv[0] if pass_ == 1 else 0.0))
+                    ay = sgn * (gv[1] + (fv[1] if pass_ == 1 else 0.0))
+                    aw = sgn * (gv[2] + (fv[2] if pass_ == 1 else 0.0))
+                    m = aw + (ax * sx1 if ax > 0 else ax * sx0) + (ay * sy1 if ay > 0 else ay * sy0)
+                    gam = max(gam, m)
+                # widen by the rounding of the terms so the bound stays conservative
+                mag = (abs(gv[0]) + abs(fv[0])) * max(abs(sx0), abs(sx1)) + (abs(gv[1]) + abs(fv[1])) * max(abs(sy0), abs(sy1)) + abs(gv[2]) + abs(fv[2])
+                edge_gamma[tri, k] = gam + 1e-9 * mag
+                for c in range(3):
+                    edge_h[tri, k, c] = sgn * hv[c]
+            fl |= FLAG_EDGE
+            ops[OP_MUL] += 3 * 18
+            ops[OP_MADD] += 3 * 18
+            ops[OP_CMP] += 3 * 6
+        flags[tri] = fl
+        status[b] = ST_OK
+
+
+@nb.njit(cache=True, inline="always")
+def _cross3(ax, ay, aw, bx, by, bw, out):
+    out[0] = ay * bw - aw * by
+    out[1] = aw * bx - ax * bw
+    out[2] = ax * by - ay * bx
+
+
+class TriangleSetup:
+    """Functional model of the triangle setup unit over a whole draw."""
+
+    name = "triangle_setup"
+    events = EVENTS
+
+    def __init__(self, config, draw, tile_size: int):
+        self.config = config
+        self.draw = draw
+        self.tile_size = tile_size
+        self.table = TriangleTable.allocate(draw.n)
+
+    def run(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Set up ``ids``; return (surviving ids, ops vector, events vector)."""
+        d, t = self.draw, self.table
+        status = np.zeros(len(ids), np.int8)
+        ops = np.zeros(N_OPS, np.int64)
+        events = np.zeros(len(EVENTS), np.int64)
+        setup_kernel(ids, d.q, d.r, d.lens_x, d.lens_y, d.width, d.height, self.tile_size,
+                     self.config.backface_culling, t.p0, t.dp, t.l0, t.dl, t.p0_32, t.dp_32,
+                     t.l0_32, t.dl_32, t.t_span, t.bounds, t.facing, t.flags, t.edge_h,
+                     t.edge_gamma, t.ref, status, ops, events)
+        return ids[status == ST_OK], ops, events
