@@ -1,0 +1,217 @@
+"""The ``pipeline-sim`` command line: a thin layer over the Python API."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import importlib.metadata
+import platform
+import sys
+import time
+from pathlib import Path
+
+from pipeline_sim.errors import UserError
+
+EXIT_USER_ERROR = 2
+
+DESCRIPTION = """\
+Simulate a 5D (x, y, u, v, t) stochastic rasterization pipeline: triangle
+setup -> tile traverser -> tile test -> z-cull -> sample tester -> shading
+-> ROP, each unit a numba kernel on bounded SimPy queues. Renders motion
+blur and depth of field from TOML scene files and reports what every unit
+did (counters) and how long it took (simulated cycles).
+"""
+
+EPILOG = """\
+examples:
+  pipeline-sim run workloads/scenes/default.toml --out runs/default
+  pipeline-sim run workloads/scenes/static.toml --spp 4 --tile 16 --out runs/static
+  pipeline-sim run scene.toml --set shading.cache_entries=512 --set zcull.time_slices=8 --out runs/x
+  pipeline-sim check workloads/scenes/default.toml
+  pipeline-sim arch --set tile_traverser.tile_size=16
+"""
+
+
+def _package_versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for name in ("numpy", "numba", "simpy", "pandas", "trimesh", "openexr", "pillow", "matplotlib"):
+        try:
+            out[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+def _load_inputs(args):
+    from pipeline_sim.config import load_arch
+    from pipeline_sim.scene import load_scene
+
+    scene = load_scene(args.scene)
+    image = scene.image
+    if args.spp is not None:
+        if args.spp < 1:
+            raise UserError(f"--spp: must be at least 1, got {args.spp}")
+        image = dataclasses.replace(image, spp=args.spp)
+    if args.seed is not None:
+        image = dataclasses.replace(image, seed=args.seed)
+    scene = scene.replace(image=image)
+    overrides = list(args.set or [])
+    if args.tile is not None:
+        overrides.append(f"tile_traverser.tile_size={args.tile}")
+    arch = load_arch(args.arch, overrides)
+    return scene, arch
+
+
+def _progress_bar(quiet: bool):
+    if quiet or not sys.stderr.isatty():
+        return None, lambda: None
+    from tqdm import tqdm
+
+    bar = tqdm(total=0, unit="tri", desc="rendering", file=sys.stderr, leave=False)
+
+    def update(done: int, total: int) -> None:
+        bar.total = total
+        bar.n = done
+        bar.refresh()
+
+    return update, bar.close
+
+
+def cmd_run(args) -> int:
+    from pipeline_sim.jit import warm_up
+    from pipeline_sim.output import atomic_directory, write_exr, write_json, write_png
+    from pipeline_sim.render import render_scene
+    from reports.run_report import headline, html_report, markdown_report, summary_text
+
+    import numpy as np
+
+    scene, arch = _load_inputs(args)
+    out_dir = Path(args.out)
+    compile_s = warm_up()
+    if not args.quiet:
+        print(f"numba kernels ready in {compile_s:.2f} s (compiled on first use, then loaded from cache)")
+    update, close = _progress_bar(args.quiet)
+    try:
+        result = render_scene(scene, arch, progress=update)
+    finally:
+        close()
+    info = {
+        "scene": str(args.scene),
+        "scene_digest": scene.digest,
+        "image": dataclasses.asdict(scene.image),
+        "seed": scene.image.seed,
+        "arch": arch.to_dict(),
+        "dimensions": result.dimensions,
+        "units_used": result.units_used,
+        "bypassed": [u for u in ("zcull", "sample_tester") if u not in result.units_used],
+        "frame_cycles": result.timing.frame_cycles,
+        "headline": headline(result),
+        "wall_time_s": result.wall_time,
+        "compile_time_s": compile_s,
+        "versions": _package_versions(),
+        "command": sys.argv,
+        "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+    with atomic_directory(out_dir) as tmp:
+        np.save(tmp / "image.npy", result.image)
+        write_exr(tmp / "image.exr", result.image)
+        write_png(tmp / "image.png", result.image)
+        result.counters.to_csv(tmp / "counters.csv", index=False)
+        result.timing.units.to_csv(tmp / "timing.csv", index=False)
+        result.timing.queues.to_csv(tmp / "queues.csv", index=False)
+        write_json(tmp / "run.json", info)
+        (tmp / "report.md").write_text(markdown_report(result, info))
+        (tmp / "report.html").write_text(html_report(result, info))
+    if not args.quiet:
+        print(summary_text(result, title=f"{args.scene} -> {out_dir}"))
+    return 0
+
+
+def cmd_check(args) -> int:
+    scene, arch = _load_inputs(args)
+    from pipeline_sim.draw import build_draw
+
+    draw = build_draw(scene)
+    print(f"{args.scene}: ok: {len(scene.objects)} objects, {draw.n} triangles, "
+          f"{scene.image.width}x{scene.image.height} at {scene.image.spp} spp, "
+          f"motion={draw.has_motion}, lens={draw.has_lens}")
+    return 0
+
+
+def cmd_arch(args) -> int:
+    import tomli_w
+
+    from pipeline_sim.config import load_arch
+
+    overrides = list(args.set or [])
+    arch = load_arch(args.arch, overrides)
+    sys.stdout.write(tomli_w.dumps(arch.to_dict()))
+    return 0
+
+
+def cmd_warmup(args) -> int:
+    from pipeline_sim.jit import warm_up
+
+    print(f"numba kernels ready in {warm_up():.2f} s")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="pipeline-sim", description=DESCRIPTION, epilog=EPILOG,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    def scene_args(p, out: bool):
+        p.add_argument("scene", metavar="SCENE.toml", help="scene file (format: README, 'Scene files')")
+        if out:
+            p.add_argument("--out", "-o", required=True, metavar="DIR",
+                           help="output folder (replaced whole when the run succeeds)")
+        p.add_argument("--spp", type=int, help="samples per pixel (overrides [image].spp)")
+        p.add_argument("--seed", type=int, help="sampling seed (overrides [image].seed)")
+        p.add_argument("--tile", type=int, help="tile size in pixels (same as --set tile_traverser.tile_size=N)")
+        p.add_argument("--arch", metavar="FILE", help="architecture TOML applied over the shipped default")
+        p.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE",
+                       help="override one architecture setting; repeatable")
+
+    run = sub.add_parser("run", help="simulate a scene; write images, counters, timing, run.json and a report",
+                         description="Simulate SCENE.toml and write into DIR: image.npy, image.exr (linear "
+                         "float RGBA), image.png (8-bit sRGB), counters.csv (one row per unit and counter), "
+                         "timing.csv (busy/starved/blocked cycles per unit), queues.csv, run.json (full "
+                         "configuration, scene digest, versions, seed, wall time) and report.md/report.html.",
+                         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    scene_args(run, out=True)
+    run.add_argument("--quiet", "-q", action="store_true", help="print nothing on success")
+    run.set_defaults(func=cmd_run)
+
+    check = sub.add_parser("check", help="validate a scene and architecture without simulating",
+                           description="Load and validate SCENE.toml and the architecture; print a summary.")
+    scene_args(check, out=False)
+    check.set_defaults(func=cmd_check)
+
+    arch = sub.add_parser("arch", help="print the resolved architecture as TOML",
+                          description="Print the architecture (shipped default, then --arch, then --set) as TOML.")
+    arch.add_argument("--arch", metavar="FILE", help="architecture TOML applied over the shipped default")
+    arch.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help="override one setting")
+    arch.set_defaults(func=cmd_arch)
+
+    warm = sub.add_parser("warmup", help="compile (or load from cache) all numba kernels and print the time",
+                          description="Compile every numba kernel, or load it from the cache, and print the time.")
+    warm.set_defaults(func=cmd_warmup)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except UserError as exc:
+        print(f"pipeline-sim: error: {exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        print("pipeline-sim: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

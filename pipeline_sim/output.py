@@ -1,0 +1,81 @@
+"""Writing a run's outputs: images, counters, timing, run.json, report.
+
+Everything is written into a temporary sibling folder first and moved into
+place at the end, so an interrupted or failed run never leaves a half
+written output folder.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+import OpenEXR
+from PIL import Image
+
+
+def linear_to_srgb8(image: np.ndarray) -> np.ndarray:
+    """Linear float RGB(A) to 8-bit sRGB RGB (IEC 61966-2-1 transfer curve)."""
+    rgb = np.clip(np.nan_to_num(image[..., :3].astype(np.float64)), 0.0, 1.0)
+    srgb = np.where(rgb <= 0.0031308, 12.92 * rgb, 1.055 * np.power(rgb, 1 / 2.4) - 0.055)
+    return np.round(srgb * 255.0).astype(np.uint8)
+
+
+def write_png(path: Path, image: np.ndarray) -> None:
+    Image.fromarray(linear_to_srgb8(image), mode="RGB").save(path)
+
+
+def write_exr(path: Path, image: np.ndarray) -> None:
+    """Linear float32 RGBA OpenEXR (ZIP compressed)."""
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    rgba = np.ascontiguousarray(image.astype(np.float32))
+    with OpenEXR.File(header, {"RGBA": rgba}) as f:
+        f.write(str(path))
+
+
+def read_exr(path: Path) -> np.ndarray:
+    with OpenEXR.File(str(path)) as f:
+        return np.asarray(f.channels()["RGBA"].pixels)
+
+
+def write_json(path: Path, data: dict) -> None:
+    path.write_text(json.dumps(data, indent=2, sort_keys=True, default=_json_default) + "\n")
+
+
+def _json_default(obj):
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (np.floating,)):
+        return float(obj)
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serializable: {type(obj)}")
+
+
+@contextmanager
+def atomic_directory(target: Path) -> Iterator[Path]:
+    """Yield a temporary folder; on success it replaces ``target`` whole."""
+    target = Path(target)
+    parent = target.resolve().parent
+    parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent))
+    try:
+        yield tmp
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    old = None
+    if target.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=parent))
+        os.replace(target, old / "previous")
+    os.replace(tmp, target)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)

@@ -1,0 +1,128 @@
+"""The one-run report: a one-screen text summary and a short Markdown/HTML report."""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+
+import numpy as np
+import pandas as pd
+
+from pipeline_sim.output import linear_to_srgb8
+
+
+def unit_table(result) -> pd.DataFrame:
+    """Per-unit cycles, utilization and the unit's main work counters."""
+    t = result.timing.units.set_index("unit")
+    rows = []
+    for unit in ("triangle_setup", "tile_traverser", "tile_test", "zcull", "sample_tester", "shading", "rop"):
+        if unit in t.index:
+            r = t.loc[unit]
+            rows.append({"unit": unit, "busy": int(r.busy), "starved": int(r.starved), "blocked": int(r.blocked),
+                         "util": f"{100 * r.utilization:5.1f}%", "in": result.counter(unit, "records_in"),
+                         "out": result.counter(unit, "records_out")})
+        else:
+            rows.append({"unit": unit, "busy": 0, "starved": 0, "blocked": 0, "util": "bypass", "in": 0, "out": 0})
+    return pd.DataFrame(rows)
+
+
+def headline(result) -> dict[str, float]:
+    """The figures every summary shows."""
+    h, w = result.image.shape[:2]
+    tested = result.counter("sample_tester", "samples_tested")
+    covered = result.counter("sample_tester", "samples_covered")
+    execs = result.counter("shading", "shader_executions")
+    return {
+        "frame_cycles": result.timing.frame_cycles,
+        "samples_tested": tested,
+        "samples_covered": covered,
+        "ste": covered / tested if tested else float("nan"),
+        "shader_executions": execs,
+        "shader_executions_per_pixel": execs / (w * h),
+        "depth_bytes_per_pixel": (result.counter("rop", "bytes_read") + result.counter("rop", "bytes_written")) / (w * h),
+        "wall_time_s": result.wall_time,
+    }
+
+
+def summary_text(result, title: str = "") -> str:
+    """One screen: per-unit cycles and utilization, STE, shader executions, frame cycles."""
+    hd = headline(result)
+    dims = "".join(n for n, on in (("xy", True), ("t", result.dimensions["motion"]),
+                                    ("uv", result.dimensions["lens"])) if on)
+    lines = []
+    if title:
+        lines.append(title)
+    lines.append(f"dimensions: {dims}   units: {' -> '.join(result.units_used)}")
+    lines.append(unit_table(result).to_string(index=False))
+    lines.append(
+        f"frame cycles {hd['frame_cycles']:,.0f} | STE {100 * hd['ste']:.1f}% "
+        f"({hd['samples_covered']:,} of {hd['samples_tested']:,} samples) | "
+        f"shader executions {hd['shader_executions']:,} ({hd['shader_executions_per_pixel']:.2f}/pixel) | "
+        f"wall {hd['wall_time_s']:.2f} s"
+    )
+    return "\n".join(lines)
+
+
+def _png_bytes(image: np.ndarray) -> bytes:
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(linear_to_srgb8(image), mode="RGB").save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def markdown_report(result, run_info: dict) -> str:
+    """A short Markdown report next to ``image.png``."""
+    hd = headline(result)
+    lines = [
+        f"# pipeline-sim run: {run_info.get('scene', '')}",
+        "",
+        "![image](image.png)",
+        "",
+        f"- dimensions: motion={result.dimensions['motion']}, lens={result.dimensions['lens']}",
+        f"- frame cycles: {hd['frame_cycles']:,.0f}",
+        f"- STE: {100 * hd['ste']:.2f}% ({hd['samples_covered']:,} covered of {hd['samples_tested']:,} tested)",
+        f"- shader executions: {hd['shader_executions']:,} ({hd['shader_executions_per_pixel']:.2f} per pixel)",
+        f"- wall time: {hd['wall_time_s']:.2f} s",
+        "",
+        "## Units",
+        "",
+        unit_table(result).to_markdown(index=False) if _has_tabulate() else "```\n" + unit_table(result).to_string(index=False) + "\n```",
+        "",
+        "## Queues",
+        "",
+        "```\n" + result.timing.queues.to_string(index=False) + "\n```",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def html_report(result, run_info: dict) -> str:
+    """The same report as self-contained HTML (image embedded, no network)."""
+    hd = headline(result)
+    img = base64.b64encode(_png_bytes(result.image)).decode()
+    units = unit_table(result).to_html(index=False, border=0)
+    queues = result.timing.queues.to_html(index=False, border=0, float_format=lambda v: f"{v:.2f}")
+    title = html.escape(str(run_info.get("scene", "")))
+    return f"""<!doctype html>
+<html><head><meta charset="utf-8"><title>pipeline-sim: {title}</title>
+<style>body{{font-family:sans-serif;max-width:60em;margin:2em auto}} td,th{{padding:2px 8px;text-align:right}}
+img{{image-rendering:pixelated;max-width:100%}}</style></head><body>
+<h1>pipeline-sim run: {title}</h1>
+<img alt="rendered image" src="data:image/png;base64,{img}">
+<ul><li>frame cycles: {hd['frame_cycles']:,.0f}</li>
+<li>STE: {100 * hd['ste']:.2f}% ({hd['samples_covered']:,} covered of {hd['samples_tested']:,} tested)</li>
+<li>shader executions: {hd['shader_executions']:,} ({hd['shader_executions_per_pixel']:.2f} per pixel)</li>
+<li>wall time: {hd['wall_time_s']:.2f} s</li></ul>
+<h2>Units</h2>{units}<h2>Queues</h2>{queues}
+</body></html>
+"""
+
+
+def _has_tabulate() -> bool:
+    try:
+        import tabulate  # noqa: F401
+    except ImportError:
+        return False
+    return True
