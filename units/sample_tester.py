@@ -43,56 +43,60 @@ def _top_left(a, b):
     return a > 0.0 or (a == 0.0 and b > 0.0)
 
 
+@nb.njit(cache=True, inline="always")
+def _edge(xj, yj, wj, xi, yi, wi, x, y):
+    """n = p_j x p_i and its value at (x, y, 1)."""
+    a = yj * wi - wj * yi
+    b = wj * xi - xj * wi
+    c = xj * yi - yj * xi
+    return a, b, a * x + b * y + c
+
+
 @nb.njit(cache=True)
 def inside_test(p0, dp, l0, dl, tri, x, y, t, u, v, backface_culling):
     """Exact 5D test of one sample (float32); returns (covered, b0, b1, b2, z_ndc)."""
-    X = np.empty(3, np.float32)
-    Y = np.empty(3, np.float32)
-    W = np.empty(3, np.float32)
-    for k in range(3):
-        X[k] = p0[tri, k, 0] + t * dp[tri, k, 0] + u * (l0[tri, k, 0] + t * dl[tri, k, 0])
-        Y[k] = p0[tri, k, 1] + t * dp[tri, k, 1] + v * (l0[tri, k, 1] + t * dl[tri, k, 1])
-        W[k] = p0[tri, k, 3] + t * dp[tri, k, 3]
-    na = np.empty(3, np.float32)
-    nb_ = np.empty(3, np.float32)
-    e = np.empty(3, np.float32)
-    for k in range(3):
-        i = (k + 1) % 3
-        j = (k + 2) % 3
-        # n_k = p_j x p_i
-        a = Y[j] * W[i] - W[j] * Y[i]
-        b = W[j] * X[i] - X[j] * W[i]
-        c = X[j] * Y[i] - Y[j] * X[i]
-        na[k] = a
-        nb_[k] = b
-        e[k] = a * x + b * y + c
-    # D = p0 . (p2 x p1) = p0 . n_0
-    a0 = Y[2] * W[1] - W[2] * Y[1]
-    b0 = W[2] * X[1] - X[2] * W[1]
-    c0 = X[2] * Y[1] - Y[2] * X[1]
-    D = X[0] * a0 + Y[0] * b0 + W[0] * c0
+    X0 = p0[tri, 0, 0] + t * dp[tri, 0, 0] + u * (l0[tri, 0, 0] + t * dl[tri, 0, 0])
+    Y0 = p0[tri, 0, 1] + t * dp[tri, 0, 1] + v * (l0[tri, 0, 1] + t * dl[tri, 0, 1])
+    W0 = p0[tri, 0, 3] + t * dp[tri, 0, 3]
+    X1 = p0[tri, 1, 0] + t * dp[tri, 1, 0] + u * (l0[tri, 1, 0] + t * dl[tri, 1, 0])
+    Y1 = p0[tri, 1, 1] + t * dp[tri, 1, 1] + v * (l0[tri, 1, 1] + t * dl[tri, 1, 1])
+    W1 = p0[tri, 1, 3] + t * dp[tri, 1, 3]
+    X2 = p0[tri, 2, 0] + t * dp[tri, 2, 0] + u * (l0[tri, 2, 0] + t * dl[tri, 2, 0])
+    Y2 = p0[tri, 2, 1] + t * dp[tri, 2, 1] + v * (l0[tri, 2, 1] + t * dl[tri, 2, 1])
+    W2 = p0[tri, 2, 3] + t * dp[tri, 2, 3]
+    # edge k opposite vertex k: n_k = p_j x p_i with (i, j) = (k+1, k+2) mod 3
+    a0, b0, e0 = _edge(X2, Y2, W2, X1, Y1, W1, x, y)
+    a1, b1, e1 = _edge(X0, Y0, W0, X2, Y2, W2, x, y)
+    a2, b2, e2 = _edge(X1, Y1, W1, X0, Y0, W0, x, y)
+    c0 = X2 * Y1 - Y2 * X1
+    D = X0 * a0 + Y0 * b0 + W0 * c0  # p0 . (p2 x p1)
     if D == 0.0 or (backface_culling and D < 0.0):
-        return False, 0.0, 0.0, 0.0, 0.0
-    s = np.float32(1.0) if D > 0.0 else np.float32(-1.0)
-    for k in range(3):
-        val = e[k] * s
-        if val < 0.0:
-            return False, 0.0, 0.0, 0.0, 0.0
-        if val == 0.0 and not _top_left(na[k] * s, nb_[k] * s):
-            return False, 0.0, 0.0, 0.0, 0.0
-    tot = e[0] + e[1] + e[2]
+        return False, np.float32(0.0), np.float32(0.0), np.float32(0.0), np.float32(0.0)
+    if D < 0.0:
+        e0, e1, e2 = -e0, -e1, -e2
+        a0, a1, a2 = -a0, -a1, -a2
+        b0, b1, b2 = -b0, -b1, -b2
+    if e0 < 0.0 or e1 < 0.0 or e2 < 0.0:
+        return False, np.float32(0.0), np.float32(0.0), np.float32(0.0), np.float32(0.0)
+    if ((e0 == 0.0 and not _top_left(a0, b0)) or (e1 == 0.0 and not _top_left(a1, b1))
+            or (e2 == 0.0 and not _top_left(a2, b2))):
+        return False, np.float32(0.0), np.float32(0.0), np.float32(0.0), np.float32(0.0)
+    tot = e0 + e1 + e2
     if tot == 0.0:
-        return False, 0.0, 0.0, 0.0, 0.0
-    z = (e[0] * (p0[tri, 0, 2] + t * dp[tri, 0, 2]) + e[1] * (p0[tri, 1, 2] + t * dp[tri, 1, 2])
-         + e[2] * (p0[tri, 2, 2] + t * dp[tri, 2, 2])) / D
+        return False, np.float32(0.0), np.float32(0.0), np.float32(0.0), np.float32(0.0)
+    Z0 = p0[tri, 0, 2] + t * dp[tri, 0, 2]
+    Z1 = p0[tri, 1, 2] + t * dp[tri, 1, 2]
+    Z2 = p0[tri, 2, 2] + t * dp[tri, 2, 2]
+    # z/w = sum(e_k Z_k) / D; with e oriented by the sign of D that is / |D|
+    z = (e0 * Z0 + e1 * Z1 + e2 * Z2) / abs(D)
     if not (z >= -1.0 and z <= 1.0):
-        return False, 0.0, 0.0, 0.0, 0.0
+        return False, np.float32(0.0), np.float32(0.0), np.float32(0.0), np.float32(0.0)
     inv = np.float32(1.0) / tot
-    return True, e[0] * inv, e[1] * inv, e[2] * inv, z
+    return True, e0 * inv, e1 * inv, e2 * inv, z
 
 
 @nb.njit(cache=True)
-def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, noread_in,
+def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, noread_in,
                        tile_size, width, height, spp, sx, sy, su, sv, st,
                        p0, dp, l0, dl, backface_culling,
                        out_tri, out_pix, out_sidx, out_z, out_b0, out_b1, out_b2, out_noread, ops, events):
@@ -106,6 +110,8 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
         ub = u_hi[i]
         va = v_lo[i]
         vb = v_hi[i]
+        za = np.float32(z_lo[i])
+        zb = np.float32(z_hi[i])
         for py in range(tile_y[i] * tile_size, min((tile_y[i] + 1) * tile_size, height)):
             for px in range(tile_x[i] * tile_size, min((tile_x[i] + 1) * tile_size, width)):
                 base = (py * width + px) * spp
@@ -140,6 +146,9 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
                     ok, b0, b1, b2, z = inside_test(p0, dp, l0, dl, tri, np.float32(px + sx[k]),
                                                      np.float32(py + sy[k]), st[k], u, v, backface_culling)
                     if ok:
+                        # the true depth lies in z^; clamping removes float32 rounding
+                        # so z-cull decisions made on z^ agree with the ROP's
+                        z = min(max(z, za), zb)
                         out_tri[n] = tri
                         out_pix[n] = py * width + px
                         out_sidx[n] = s
@@ -180,7 +189,8 @@ class SampleTester:
         events = np.zeros(len(EVENTS), np.int64)
         t = self.table
         m = sample_test_kernel(tiles["tri"], tiles["tx"], tiles["ty"], tiles["t_lo"], tiles["t_hi"],
-                               tiles["u_lo"], tiles["u_hi"], tiles["v_lo"], tiles["v_hi"], tiles["noread"],
+                               tiles["u_lo"], tiles["u_hi"], tiles["v_lo"], tiles["v_hi"], tiles["z_lo"],
+                               tiles["z_hi"], tiles["noread"],
                                ts, s.width, s.height, s.spp, s.x, s.y, s.u, s.v, s.t,
                                t.p0_32, t.dp_32, t.l0_32, t.dl_32, self.backface_culling,
                                out["tri"], out["pix"], out["sidx"], out["z"], out["b0"], out["b1"],

@@ -206,10 +206,9 @@ def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, edge_tes
             if lo > hi:
                 events[EV_REJ_EDGE] += 1
                 continue
+        # a triangle without lens shift is seen alike from every lens position
         ulo, uhi, vlo, vhi = -1.0, 1.0, -1.0, 1.0
-        if (fl & FLAG_LENS) == 0:
-            ulo, uhi, vlo, vhi = 0.0, 0.0, 0.0, 0.0
-        elif lens_bounds and (fl & FLAG_WPOS) != 0:
+        if lens_bounds and (fl & FLAG_LENS) != 0 and (fl & FLAG_WPOS) != 0:
             ulo, uhi = _lens_interval(p0, dp, l0, dl, tri, 0, x0, x1, lo, hi, ops)
             if ulo > uhi:
                 events[EV_REJ_LENS] += 1

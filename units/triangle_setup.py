@@ -43,6 +43,9 @@ EV_FRUSTUM, EV_BACKFACE, EV_DEGENERATE, EV_W0, EV_MOVING, EV_DEFOCUS, EV_MIXED =
 
 ST_OK, ST_FRUSTUM, ST_BACKFACE, ST_DEGENERATE = 0, 1, 2, 3
 W_EPS = 1e-9  # w below this counts as crossing the camera plane
+# a triangle whose 2DH determinant stays below this fraction of |p0||p1||p2|
+# for every (t, u, v) has no area: it is dropped as degenerate
+DEGENERATE_REL = 1e-10
 
 
 @dataclass
@@ -233,11 +236,14 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
                     vx = np.empty(3)
                     vy = np.empty(3)
                     vw = np.empty(3)
+                    prod = 1.0
                     for k in range(3):
                         vx[k] = px[0, k, 0] + t * (px[1, k, 0] - px[0, k, 0]) + u * (lx[0, k, 0] + t * (lx[1, k, 0] - lx[0, k, 0]))
                         vy[k] = px[0, k, 1] + t * (px[1, k, 1] - px[0, k, 1]) + v * (lx[0, k, 1] + t * (lx[1, k, 1] - lx[0, k, 1]))
                         vw[k] = px[0, k, 3] + t * (px[1, k, 3] - px[0, k, 3])
-                        scale = max(scale, abs(vx[k]) + abs(vy[k]) + abs(vw[k]))
+                        prod *= np.sqrt(vx[k] * vx[k] + vy[k] * vy[k] + vw[k] * vw[k])
+                    # |D| <= |p0| |p1| |p2|: the scale of D, invariant to each vertex's 2DH scale
+                    scale = max(scale, prod)
                     f[it] = _det(vx[0], vy[0], vw[0], vx[1], vy[1], vw[1], vx[2], vy[2], vw[2])
                 if moving:
                     c1 = (-5.0 * f[0] + 18.0 * f[1] - 9.0 * f[2] + 2.0 * f[3]) / 6.0
@@ -249,7 +255,7 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
                     bern_max = max(bern_max, f[0])
         ops[OP_MADD] += (4 if moving else 1) * nu * nu * 15
         ops[OP_MUL] += (4 if moving else 1) * nu * nu * 6
-        tol = 1e-12 * scale * scale * scale
+        tol = DEGENERATE_REL * scale
         if bern_max <= tol and bern_min >= -tol:
             status[b] = ST_DEGENERATE
             events[EV_DEGENERATE] += 1
@@ -393,4 +399,5 @@ class TriangleSetup:
                      self.config.backface_culling, t.p0, t.dp, t.l0, t.dl, t.p0_32, t.dp_32,
                      t.l0_32, t.dl_32, t.t_span, t.bounds, t.facing, t.flags, t.edge_h,
                      t.edge_gamma, t.ref, status, ops, events)
+        self.last_status = status
         return ids[status == ST_OK], ops, events

@@ -1,0 +1,33 @@
+# pipeline-sim: the two commands a fresh machine needs are `make demo` and `make test`.
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+
+.PHONY: demo test bench warmup clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+## demo: set up, then simulate the default motion blur + depth of field workload into runs/default
+demo: $(STAMP)
+	$(VENV)/bin/pipeline-sim run workloads/scenes/default.toml --out runs/default
+	@echo "image: runs/default/image.png  counters: runs/default/counters.csv  report: runs/default/report.html"
+
+## test: set up, then run the test suite
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+## bench: set up, then run the benchmarks (table printed, results saved in bench-results/)
+bench: $(STAMP)
+	$(PY) -m benchmarks.run --out bench-results
+
+warmup: $(STAMP)
+	$(VENV)/bin/pipeline-sim warmup
+
+clean:
+	rm -rf runs bench-results .pytest_cache .hypothesis
+	find . -name __pycache__ -prune -exec rm -rf {} +

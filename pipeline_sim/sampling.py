@@ -1,0 +1,601 @@
+"""Per-pixel 5D sample patterns (x, y, u, v, t) for stochastic rasterization.
+
+The default pattern follows Munkberg et al., "Hierarchical Stochastic Motion
+Blur Rasterization" (HPG 2011), §5 and Appendix A (eq. 10-19): the
+Grünschloß-Keller (0, m, 3)-net in base 2 with generator matrices
+
+* ``C1`` = exchange matrix (``x_j = j / 2^m``),
+* ``C2[k, l] = 1 if k <= l`` (with ``C1``: the Larcher-Pillichshammer points),
+* ``C3[k, l] = binom(l, k) mod 2`` (1-based; an involution over F2),
+
+re-ordered by the digit permutation ``D = C3 C1`` so that the time component
+becomes sequential.  The t-ordered matrices are ``C1' = C1 C3 C1``
+(``binom(m+1-l, m+1-k) mod 2``, eq. 17), ``C2' = C2 C3 C1``
+(``binom(m-l, k-1) mod 2``, eq. 19) and ``C3 D = C1``, so point ``j`` has
+``t_j = j / 2^m`` while ``(x_j, y_j)`` are the LP points in another order.
+
+Each pixel gets its own random digital scramble (XOR of each component's m
+digits with a per-pixel mask, Kollig & Keller 2002), which keeps the
+(0, m, 3)-net property, plus a uniform jitter inside the finest stratum.  The
+lens coordinates are "padded" from an independently scrambled 2D LP net,
+assigned through a per-pixel random permutation and mapped to the unit disk
+with the Shirley-Chiu concentric map (or to the square ``[-1, 1]^2``).
+
+All randomness comes from a counter-based hash of ``(seed, pixel, stream,
+index)``, so a pixel's samples depend only on the seed and its global pixel
+index: generating a band of rows gives exactly the rows of the full frame.
+Coordinates are produced as 24-bit fixed-point values, so every float32
+coordinate is exact, ``< 1`` and ``floor(coord * 2^m)`` is the net stratum.
+The per-pixel loops are numba kernels (cached, GIL-free) run over pixel chunks
+on a thread pool.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from math import comb
+
+import numba
+import numpy as np
+
+from pipeline_sim.errors import UserError, did_you_mean
+
+__all__ = [
+    "SampleSet",
+    "concentric_disk",
+    "generator_matrices",
+    "grunschloss_keller_matrices",
+    "make_samples",
+    "map_lens",
+    "net_integer_coords",
+    "square_lens",
+    "t_ordered_net",
+    "MAX_SPP",
+]
+
+#: Largest samples-per-pixel accepted by :func:`make_samples`.
+MAX_SPP = 1 << 16
+#: Fixed-point precision of generated coordinates (float32 mantissa).
+_FRAC_BITS = 24
+_PATTERNS = ("net", "random", "table")
+_LENS_SHAPES = ("disk", "square")
+_TABLE_COLUMNS = ("x", "y", "u", "v", "t")
+_MASK64 = (1 << 64) - 1
+
+# ---------------------------------------------------------------------------
+# Generator matrices and unscrambled nets
+# ---------------------------------------------------------------------------
+
+
+def _check_m(m: int, limit: int = 31) -> None:
+    if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or not 0 <= m <= limit:
+        raise UserError(f"net size m must be an integer in 0..{limit}, got {m!r}")
+
+
+def grunschloss_keller_matrices(m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Original Grünschloß-Keller matrices ``(C1, C2, C3)`` (002 eq. 13-14), uint8 m x m."""
+    _check_m(m)
+    c1 = np.fliplr(np.eye(m, dtype=np.uint8)).copy()
+    c2 = np.triu(np.ones((m, m), dtype=np.uint8))
+    c3 = np.array(
+        [[comb(l, k) & 1 for l in range(1, m + 1)] for k in range(1, m + 1)], dtype=np.uint8
+    ).reshape(m, m)
+    return c1, c2, c3
+
+
+def generator_matrices(m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """t-ordered matrices ``(C1', C2', C_t)`` of 002 eq. 12 / 17 / 19, uint8 m x m.
+
+    ``C1'[k, l] = binom(m+1-l, m+1-k) mod 2``, ``C2'[k, l] = binom(m-l, k-1) mod 2``
+    (1-based) and the time matrix is the exchange matrix, so ``t_j = j / 2^m``.
+    """
+    _check_m(m)
+    c1p = np.array(
+        [[comb(m + 1 - l, m + 1 - k) & 1 for l in range(1, m + 1)] for k in range(1, m + 1)],
+        dtype=np.uint8,
+    ).reshape(m, m)
+    c2p = np.array(
+        [[comb(m - l, k - 1) & 1 for l in range(1, m + 1)] for k in range(1, m + 1)],
+        dtype=np.uint8,
+    ).reshape(m, m)
+    ct = np.fliplr(np.eye(m, dtype=np.uint8)).copy()
+    return c1p, c2p, ct
+
+
+def net_integer_coords(matrix: np.ndarray) -> np.ndarray:
+    """Integer coordinates ``2^m * x_j`` (j = 0..2^m-1) of one component, eq. 11.
+
+    Row k (0-based) of the F2 product is the digit of weight ``2^-(k+1)``; the
+    product is evaluated by XOR-ing packed columns, as in the paper's GetXY.
+    """
+    c = np.asarray(matrix, dtype=np.uint64) & np.uint64(1)
+    m = c.shape[0]
+    weights = np.uint64(1) << np.arange(m - 1, -1, -1, dtype=np.uint64)
+    columns = (c * weights[:, None]).sum(axis=0, dtype=np.uint64)  # packed column l
+    j = np.arange(1 << m, dtype=np.uint64)
+    out = np.zeros(1 << m, dtype=np.uint64)
+    for l in range(m):
+        bit = (j >> np.uint64(l)) & np.uint64(1)
+        out ^= bit * columns[l]
+    return out
+
+
+def t_ordered_net(m: int) -> np.ndarray:
+    """Unscrambled t-ordered (0, m, 3)-net: shape (2^m, 3) float64 columns (x, y, t).
+
+    Row j has ``t = j / 2^m``; ``(x, y)`` are the Larcher-Pillichshammer points.
+    """
+    _check_m(m, 24)
+    c1p, c2p, ct = generator_matrices(m)
+    scale = 1.0 / (1 << m)
+    return np.stack(
+        [net_integer_coords(c).astype(np.float64) * scale for c in (c1p, c2p, ct)], axis=1
+    )
+
+
+# ---------------------------------------------------------------------------
+# Lens maps
+# ---------------------------------------------------------------------------
+
+
+def concentric_disk(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Shirley-Chiu concentric map of ``[0,1)^2`` onto the unit disk (area preserving)."""
+    sa = 2.0 * np.asarray(a, dtype=np.float64) - 1.0
+    sb = 2.0 * np.asarray(b, dtype=np.float64) - 1.0
+    first = np.abs(sa) > np.abs(sb)
+    r = np.where(first, sa, sb)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        phi = np.where(
+            first, (np.pi / 4) * (sb / sa), (np.pi / 2) - (np.pi / 4) * (sa / sb)
+        )
+    phi = np.where(r == 0.0, 0.0, phi)
+    return r * np.cos(phi), r * np.sin(phi)
+
+
+def square_lens(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Map ``[0,1)^2`` to the square lens ``[-1,1)^2``."""
+    return 2.0 * np.asarray(a, dtype=np.float64) - 1.0, 2.0 * np.asarray(b, dtype=np.float64) - 1.0
+
+
+def map_lens(a: np.ndarray, b: np.ndarray, shape: str = "disk") -> tuple[np.ndarray, np.ndarray]:
+    """Map unit-square lens samples to the lens shape ``"disk"`` or ``"square"``."""
+    if shape == "disk":
+        return concentric_disk(a, b)
+    if shape == "square":
+        return square_lens(a, b)
+    raise UserError(f"lens_shape: unknown shape '{shape}'{did_you_mean(shape, _LENS_SHAPES)}")
+
+
+# ---------------------------------------------------------------------------
+# Counter-based hashing (numba kernels)
+# ---------------------------------------------------------------------------
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+_PIX_SALT = np.uint64(0xD1B54A32D192ED03)
+
+# Random streams (per pixel).
+_S_MASK_X, _S_MASK_Y, _S_MASK_T, _S_MASK_A, _S_MASK_B = 0, 1, 2, 3, 4
+_S_JIT_XY, _S_JIT_T, _S_JIT_AB = 5, 6, 7
+_S_PERM = 10
+_S_RND_X, _S_RND_Y, _S_RND_T, _S_RND_A, _S_RND_B = 11, 12, 13, 14, 15
+_S_ROT = 16
+
+_JIT = dict(nogil=True, cache=True)
+
+
+@numba.njit("uint64(uint64)", **_JIT)
+def _mix(z: np.uint64) -> np.uint64:
+    """SplitMix64 finaliser."""
+    z = (z ^ (z >> np.uint64(30))) * _M1
+    z = (z ^ (z >> np.uint64(27))) * _M2
+    return z ^ (z >> np.uint64(31))
+
+
+@numba.njit("uint64(uint64, int64)", **_JIT)
+def _pixel_key(seed_key: np.uint64, p: np.int64) -> np.uint64:
+    return _mix(seed_key ^ _mix(np.uint64(p) * _GOLDEN + _PIX_SALT))
+
+
+@numba.njit("uint64(uint64, int64, int64)", **_JIT)
+def _rand(key: np.uint64, stream: np.int64, i: np.int64) -> np.uint64:
+    """64 random bits for (pixel key, stream, index)."""
+    ctr = (np.uint64(stream) << np.uint64(40)) + np.uint64(i) + np.uint64(1)
+    return _mix(key + ctr * _GOLDEN)
+
+
+@numba.njit("uint64(uint64, int64)", **_JIT)
+def _top_bits(h: np.uint64, n: np.int64) -> np.uint64:
+    if n <= 0:
+        return np.uint64(0)
+    return h >> np.uint64(64 - n)
+
+
+@numba.njit("float64(uint64)", **_JIT)
+def _fixed_to_unit(v: np.uint64) -> np.float64:
+    """24-bit fixed point -> [0, 1) (exact in float32)."""
+    return np.float64(v) * (1.0 / 16777216.0)
+
+
+@numba.njit(**_JIT)
+def _concentric(a: float, b: float) -> tuple[float, float]:
+    sa = 2.0 * a - 1.0
+    sb = 2.0 * b - 1.0
+    if sa == 0.0 and sb == 0.0:
+        return 0.0, 0.0
+    if abs(sa) > abs(sb):
+        r = sa
+        phi = (np.pi / 4) * (sb / sa)
+    else:
+        r = sb
+        phi = (np.pi / 2) - (np.pi / 4) * (sa / sb)
+    return r * np.cos(phi), r * np.sin(phi)
+
+
+@numba.njit(**_JIT)
+def _lens_point(a: float, b: float, square: bool) -> tuple[float, float]:
+    if square:
+        return 2.0 * a - 1.0, 2.0 * b - 1.0
+    return _concentric(a, b)
+
+
+@numba.njit(**_JIT)
+def _concentric_many(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Kernel concentric map on arrays (used to test it against :func:`concentric_disk`)."""
+    u = np.empty(a.size)
+    v = np.empty(a.size)
+    for i in range(a.size):
+        u[i], v[i] = _concentric(a[i], b[i])
+    return u, v
+
+
+@numba.njit(**_JIT)
+def _shuffle(key: np.uint64, perm: np.ndarray) -> None:
+    """Fisher-Yates permutation of 0..n-1 driven by the pixel's hash stream."""
+    n = perm.size
+    for i in range(n):
+        perm[i] = i
+    for i in range(n - 1, 0, -1):
+        h = _rand(key, _S_PERM, i)
+        k = np.int64(((h >> np.uint64(32)) * np.uint64(i + 1)) >> np.uint64(32))
+        tmp = perm[i]
+        perm[i] = perm[k]
+        perm[k] = tmp
+
+
+@numba.njit(**_JIT)
+def _argsort(keys: np.ndarray) -> np.ndarray:
+    """Stable argsort: insertion sort on runs of 16, then bottom-up merges."""
+    n = keys.size
+    order = np.empty(n, dtype=np.int64)
+    run = 16
+    for start in range(0, n, run):
+        for i in range(start, min(n, start + run)):
+            k = keys[i]
+            j = i
+            while j > start and keys[order[j - 1]] > k:
+                order[j] = order[j - 1]
+                j -= 1
+            order[j] = i
+    if n <= run:
+        return order
+    buf = np.empty(n, dtype=np.int64)
+    width = run
+    while width < n:
+        for lo in range(0, n, 2 * width):
+            mid = min(n, lo + width)
+            hi = min(n, lo + 2 * width)
+            a, b, o = lo, mid, lo
+            while a < mid and b < hi:
+                if keys[order[b]] < keys[order[a]]:
+                    buf[o] = order[b]
+                    b += 1
+                else:
+                    buf[o] = order[a]
+                    a += 1
+                o += 1
+            while a < mid:
+                buf[o] = order[a]
+                a += 1
+                o += 1
+            while b < hi:
+                buf[o] = order[b]
+                b += 1
+                o += 1
+        order, buf = buf, order
+        width *= 2
+    return order
+
+
+_CHUNK = 16384  # pixels per thread-pool work item
+
+
+@numba.njit(**_JIT)
+def _net_kernel(
+    p0, lo, hi, spp, m, seed_key, xs, ys, lb, lens, motion, square, ox, oy, ou, ov, ot
+):
+    jb = _FRAC_BITS - m  # jitter bits below the finest stratum
+    perm = np.empty(spp, dtype=np.int64)
+    for lp in range(lo, hi):
+        key = _pixel_key(seed_key, p0 + lp)
+        mx = _top_bits(_rand(key, _S_MASK_X, 0), m)
+        my = _top_bits(_rand(key, _S_MASK_Y, 0), m)
+        mt = _top_bits(_rand(key, _S_MASK_T, 0), m)
+        base = lp * spp
+        # Scrambled t digits are a permutation of 0..spp-1, so sorted position s
+        # has t-stratum s and comes from net index j = s ^ mt: no sort needed.
+        for s in range(spp):
+            j = np.uint64(s) ^ mt
+            h = _rand(key, _S_JIT_XY, s)  # 24 jitter bits each for x and y
+            xi = ((xs[j] ^ mx) << np.uint64(jb)) | _top_bits(h, jb)
+            yi = ((ys[j] ^ my) << np.uint64(jb)) | _top_bits(h << np.uint64(24), jb)
+            ox[base + s] = _fixed_to_unit(xi)
+            oy[base + s] = _fixed_to_unit(yi)
+            if motion:
+                ti = (np.uint64(s) << np.uint64(jb)) | _top_bits(_rand(key, _S_JIT_T, s), jb)
+                ot[base + s] = _fixed_to_unit(ti)
+            else:
+                ot[base + s] = 0.5
+        if lens:
+            ma = _top_bits(_rand(key, _S_MASK_A, 0), m)
+            mb = _top_bits(_rand(key, _S_MASK_B, 0), m)
+            _shuffle(key, perm)
+            for s in range(spp):
+                i = perm[s]
+                h = _rand(key, _S_JIT_AB, s)
+                ai = ((np.uint64(i) ^ ma) << np.uint64(jb)) | _top_bits(h, jb)
+                bi = ((lb[i] ^ mb) << np.uint64(jb)) | _top_bits(h << np.uint64(24), jb)
+                u, v = _lens_point(_fixed_to_unit(ai), _fixed_to_unit(bi), square)
+                ou[base + s] = u
+                ov[base + s] = v
+
+
+@numba.njit(**_JIT)
+def _random_kernel(p0, lo, hi, spp, seed_key, lens, motion, square, ox, oy, ou, ov, ot):
+    nb = _FRAC_BITS
+    tkeys = np.empty(spp, dtype=np.uint64)
+    for lp in range(lo, hi):
+        key = _pixel_key(seed_key, p0 + lp)
+        base = lp * spp
+        for i in range(spp):
+            tkeys[i] = _top_bits(_rand(key, _S_RND_T, i), nb)
+        order = _argsort(tkeys)
+        for s in range(spp):
+            i = order[s]
+            ox[base + s] = _fixed_to_unit(_top_bits(_rand(key, _S_RND_X, i), nb))
+            oy[base + s] = _fixed_to_unit(_top_bits(_rand(key, _S_RND_Y, i), nb))
+            ot[base + s] = _fixed_to_unit(tkeys[i]) if motion else 0.5
+            if lens:
+                a = _fixed_to_unit(_top_bits(_rand(key, _S_RND_A, i), nb))
+                b = _fixed_to_unit(_top_bits(_rand(key, _S_RND_B, i), nb))
+                u, v = _lens_point(a, b, square)
+                ou[base + s] = u
+                ov[base + s] = v
+
+
+_BELOW_ONE = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
+
+
+@numba.njit(**_JIT)
+def _wrap_unit(x: float) -> float:
+    """Toroidal wrap to [0, 1), clamped so the float32 value stays below 1."""
+    x = x - np.floor(x)
+    return min(x, _BELOW_ONE)
+
+
+@numba.njit(**_JIT)
+def _table_kernel(p0, lo, hi, spp, seed_key, table, rotate, lens, motion, ox, oy, ou, ov, ot):
+    tt = np.empty(spp, dtype=np.float32)
+    for lp in range(lo, hi):
+        base = lp * spp
+        if rotate:
+            key = _pixel_key(seed_key, p0 + lp)
+            rx = _fixed_to_unit(_top_bits(_rand(key, _S_ROT, 0), _FRAC_BITS))
+            ry = _fixed_to_unit(_top_bits(_rand(key, _S_ROT, 1), _FRAC_BITS))
+            rt = _fixed_to_unit(_top_bits(_rand(key, _S_ROT, 2), _FRAC_BITS))
+            for i in range(spp):
+                tt[i] = np.float32(_wrap_unit(table[i, 4] + rt))
+            order = _argsort(tt)
+            for s in range(spp):
+                i = order[s]
+                ox[base + s] = _wrap_unit(table[i, 0] + rx)
+                oy[base + s] = _wrap_unit(table[i, 1] + ry)
+                ot[base + s] = tt[i] if motion else 0.5
+                if lens:
+                    ou[base + s] = table[i, 2]
+                    ov[base + s] = table[i, 3]
+        else:  # table is pre-sorted by t
+            for s in range(spp):
+                ox[base + s] = min(table[s, 0], _BELOW_ONE)
+                oy[base + s] = min(table[s, 1], _BELOW_ONE)
+                ot[base + s] = table[s, 4] if motion else 0.5
+                if lens:
+                    ou[base + s] = table[s, 2]
+                    ov[base + s] = table[s, 3]
+
+
+def _run_chunked(kernel, p0: int, npix: int, spp: int, *args) -> None:
+    """Run ``kernel(p0, lo, hi, spp, *args)`` over pixel chunks on a thread pool.
+
+    The kernels release the GIL and each pixel's values depend only on (seed,
+    global pixel index, sample index), so chunking never changes the output.
+    """
+    bounds = [(lo, min(npix, lo + _CHUNK)) for lo in range(0, npix, _CHUNK)]
+    workers = min(len(bounds), os.cpu_count() or 1)
+    if workers <= 1:
+        for lo, hi in bounds:
+            kernel(p0, lo, hi, spp, *args)
+        return
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        for fut in [pool.submit(kernel, p0, lo, hi, spp, *args) for lo, hi in bounds]:
+            fut.result()
+
+
+# ---------------------------------------------------------------------------
+# Public sample sets
+# ---------------------------------------------------------------------------
+
+
+@dataclass
+class SampleSet:
+    """Structure-of-arrays samples, pixel-major, sorted by t within each pixel.
+
+    Pixel ``p = (row - row0) * width + col`` owns ``[p*spp, (p+1)*spp)`` of every
+    array. ``x, y`` are offsets within the pixel in [0,1), ``u, v`` the lens
+    position (unit disk or [-1,1]^2; zero without lens), ``t`` the shutter time
+    in [0,1) (0.5 without motion; an unscrambled user table may also hold 1.0).
+    ``height`` is the number of rows held; they
+    are image rows ``row0 .. row0+height-1``.
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    t: np.ndarray
+    spp: int
+    width: int
+    height: int
+    lens: bool
+    motion: bool
+    row0: int = 0
+
+    @property
+    def npix(self) -> int:
+        """Number of pixels held."""
+        return self.width * self.height
+
+    def __len__(self) -> int:
+        return self.npix * self.spp
+
+    def pixel_slice(self, p: int) -> slice:
+        """Index range of pixel ``p = (row - row0) * width + col`` in the arrays."""
+        if not 0 <= p < self.npix:
+            raise IndexError(f"pixel {p} outside 0..{self.npix - 1}")
+        return slice(p * self.spp, (p + 1) * self.spp)
+
+
+def _check_int(name: str, value: object, lo: int, hi: int | None = None) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise UserError(f"{name} must be an integer, got {value!r}")
+    value = int(value)
+    if value < lo or (hi is not None and value > hi):
+        rng = f">= {lo}" if hi is None else f"in {lo}..{hi}"
+        raise UserError(f"{name} must be {rng}, got {value}")
+    return value
+
+
+def _validate_table(table: object, spp: int) -> np.ndarray:
+    try:
+        arr = np.array(table, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise UserError(f"sample table: not a numeric array ({exc})") from None
+    if arr.shape != (spp, 5):
+        raise UserError(
+            f"sample table: shape {arr.shape} but expected ({spp}, 5) = (spp, columns x y u v t)"
+        )
+    limits = ((0.0, 1.0, False), (0.0, 1.0, False), (-1.0, 1.0, True), (-1.0, 1.0, True),
+              (0.0, 1.0, True))
+    for col, (name, (lo, hi, closed)) in enumerate(zip(_TABLE_COLUMNS, limits)):
+        vals = arr[:, col]
+        bad = ~np.isfinite(vals) | (vals < lo) | ((vals > hi) if closed else (vals >= hi))
+        if bad.any():
+            row = int(np.argmax(bad))
+            interval = f"[{lo:g}, {hi:g}{']' if closed else ')'}"
+            raise UserError(
+                f"sample table row {row}, column {col} ('{name}'): value {vals[row]!r} "
+                f"is not finite in {interval}"
+            )
+    return arr
+
+
+def _seed_key(seed: int) -> np.uint64:
+    z = (seed + 0x9E3779B97F4A7C15) & _MASK64
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _MASK64
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _MASK64
+    return np.uint64(z ^ (z >> 31))
+
+
+def make_samples(
+    width: int,
+    height: int,
+    spp: int,
+    seed: int,
+    *,
+    lens: bool,
+    motion: bool,
+    pattern: str = "net",
+    table: np.ndarray | None = None,
+    lens_shape: str = "disk",
+    scramble_table: bool = False,
+    rows: tuple[int, int] | None = None,
+) -> SampleSet:
+    """Generate the 5D samples of a ``width x height`` frame (or rows ``[r0, r1)``).
+
+    pattern ``"net"``: per-pixel scrambled, jittered t-ordered (0, m, 3)-net
+    (``spp = 2^m``) with a padded, permuted 2D net on the lens; ``"random"``:
+    uniform samples; ``"table"``: the user's (spp, 5) table (columns x, y, u, v,
+    t) in every pixel, optionally Cranley-Patterson rotated per pixel.
+    Values depend only on (seed, pixel index, sample index).
+    """
+    width = _check_int("width", width, 1)
+    height = _check_int("height", height, 1)
+    spp = _check_int("spp", spp, 1, MAX_SPP)
+    seed = _check_int("seed", seed, 0, _MASK64)
+    lens, motion, scramble_table = bool(lens), bool(motion), bool(scramble_table)
+    if pattern not in _PATTERNS:
+        raise UserError(
+            f"sample pattern: unknown pattern '{pattern}'{did_you_mean(str(pattern), _PATTERNS)};"
+            f" known: {', '.join(_PATTERNS)}"
+        )
+    if lens_shape not in _LENS_SHAPES:
+        raise UserError(
+            f"lens_shape: unknown shape '{lens_shape}'{did_you_mean(str(lens_shape), _LENS_SHAPES)}"
+        )
+    if pattern == "table" and table is None:
+        raise UserError("sample pattern 'table' needs a table of shape (spp, 5)")
+    if pattern != "table" and table is not None:
+        raise UserError(f"a sample table was given but pattern is '{pattern}' (use 'table')")
+    if pattern == "net" and spp & (spp - 1):
+        raise UserError(f"spp = {spp} must be a power of two for the 'net' sample pattern")
+    if rows is None:
+        r0, r1 = 0, height
+    else:
+        if len(rows) != 2:
+            raise UserError(f"rows must be a pair (r0, r1), got {rows!r}")
+        r0 = _check_int("rows[0]", rows[0], 0, height)
+        r1 = _check_int("rows[1]", rows[1], r0, height)
+
+    nrows = r1 - r0
+    npix = width * nrows
+    n = npix * spp
+    ox = np.empty(n, dtype=np.float32)
+    oy = np.empty(n, dtype=np.float32)
+    ot = np.empty(n, dtype=np.float32)
+    ou = np.zeros(n, dtype=np.float32) if not lens else np.empty(n, dtype=np.float32)
+    ov = np.zeros(n, dtype=np.float32) if not lens else np.empty(n, dtype=np.float32)
+    key = _seed_key(seed)
+    p0 = r0 * width
+    square = lens_shape == "square"
+    if npix:
+        if pattern == "net":
+            m = spp.bit_length() - 1
+            c1p, c2p, _ = generator_matrices(m)
+            xs = net_integer_coords(c1p)
+            ys = net_integer_coords(c2p)
+            lp_y = net_integer_coords(grunschloss_keller_matrices(m)[1])
+            _run_chunked(_net_kernel, p0, npix, spp, m, key, xs, ys, lp_y, lens, motion,
+                         square, ox, oy, ou, ov, ot)
+        elif pattern == "random":
+            _run_chunked(_random_kernel, p0, npix, spp, key, lens, motion, square,
+                         ox, oy, ou, ov, ot)
+        else:
+            arr = _validate_table(table, spp)
+            arr = arr[np.argsort(arr[:, 4], kind="stable")]
+            _run_chunked(_table_kernel, p0, npix, spp, key, arr, scramble_table, lens,
+                         motion, ox, oy, ou, ov, ot)
+    return SampleSet(x=ox, y=oy, u=ou, v=ov, t=ot, spp=spp, width=width, height=nrows,
+                     lens=lens, motion=motion, row0=r0)

@@ -1,0 +1,1252 @@
+"""Scene files: a TOML description of the image, camera, light and objects.
+
+A scene file is TOML. Every problem in it is reported as a one-line
+:class:`~pipeline_sim.errors.UserError` naming the file and the key path,
+for example ``scene.toml: objects[2].open.rotate: expected 3 numbers, got 2``.
+Unknown keys are errors at every level (with the nearest known name
+suggested), numbers must be finite (TOML's ``nan`` and ``inf`` are refused),
+and integers must be written as integers (``320``, not ``320.0``).
+
+Coordinates are right-handed with y up, as in OpenGL: the camera looks down
+its -z axis. Colours are linear RGB (components >= 0; values above 1 are
+allowed). Angles are in degrees. Time t runs over the shutter from 0 (open)
+to 1 (close); everything that moves, moves linearly per vertex in world
+space between its shutter-open and shutter-close positions.
+
+Format
+------
+
+.. code-block:: toml
+
+    [image]                      # required
+    width = 320                  # pixels, > 0 (required)
+    height = 180                 # pixels, > 0 (required)
+    spp = 16                     # samples per pixel, > 0 (required)
+    seed = 1                     # sample-pattern seed, >= 0 (default 0)
+
+    [camera]                     # required
+    projection = "perspective"   # "perspective" (default) or "orthographic"
+    eye = [0.0, 1.5, 6.0]        # required; at shutter open
+    look_at = [0.0, 0.5, 0.0]    # required; at shutter open
+    up = [0.0, 1.0, 0.0]         # default [0, 1, 0]; need not be orthogonal
+    fov_y = 40.0                 # vertical field of view in degrees, in (0, 180);
+                                 # perspective only; required unless `frustum`
+    near = 0.1                   # required, > 0
+    far = 100.0                  # required, > near
+    # frustum = [-0.05, 0.03, -0.02, 0.04]
+    #     optional [left, right, bottom, top], left < right, bottom < top.
+    #     Perspective: the window on the near plane (glFrustum), for
+    #     asymmetric off-centre frusta; overrides fov_y. Orthographic: the
+    #     view-volume extents (glOrtho); overrides ortho_height. The image
+    #     aspect ratio is not applied to an explicit frustum.
+    # ortho_height = 4.0         # orthographic only: full height of the view
+    #                            # volume in world units (default 2);
+    #                            # width = height * image aspect
+    # eye_close = [0.5, 1.5, 6.0]      # optional camera motion: eye and
+    # look_at_close = [0.5, 0.5, 0.0]  # look_at at shutter close (default:
+    #                                  # the shutter-open values)
+
+    [camera.lens]                # optional thin lens; perspective cameras only
+    radius = 0.08                # required, >= 0, world units (0 = pinhole)
+    focus_distance = 6.0         # > 0, world units along the view direction;
+                                 # default: distance from eye to look_at
+
+    [background]                 # optional
+    color = [0.05, 0.05, 0.08]   # default [0, 0, 0]
+
+    [light]                      # optional; default: a white directional light
+    type = "directional"         # "directional" (default) or "point"
+    direction = [-0.4, -1.0, -0.3]  # directional only: from the light toward
+                                 # the scene, normalized on load
+                                 # (default [-0.3, -1.0, -0.5])
+    # position = [2.0, 4.0, 3.0] # point only, required
+    color = [1.0, 1.0, 1.0]      # default [1, 1, 1]
+    intensity = 1.0              # >= 0, default 1
+    ambient = 0.15               # >= 0, default 0.1
+
+    [[objects]]                  # zero or more
+    name = "ball"                # optional, unique; default "object<i>" (i from 0)
+    primitive = "sphere"         # a built-in shape (parameters below) -- or --
+    # mesh = "../meshes/x.obj"   # a mesh file, relative to the scene file
+    radius = 0.5                 # primitive parameters (see below)
+    material = "lambert"         # "lambert" (default) or "flat" (unlit)
+    color = [0.8, 0.2, 0.2]      # default [0.8, 0.8, 0.8]
+    use_vertex_colors = false    # use the mesh file's vertex colours when it
+                                 # has them (default false)
+
+    [objects.open]               # optional transform at shutter open:
+    translate = [0.0, 0.5, 0.0]  # scale, then rotate (degrees about x, then
+    rotate = [0.0, 0.0, 0.0]     # y, then z), then translate
+    scale = 1.0                  # number or [sx, sy, sz], components > 0
+
+    [objects.close]              # optional transform at shutter close; each
+    translate = [0.6, 0.5, 0.0]  # key missing here takes its `open` value
+
+Exactly one of ``primitive`` and ``mesh`` is required. Primitives, all
+centred on the object-space origin, with their parameters and defaults:
+
+- ``sphere``: ``radius = 1``, ``subdivisions = 3`` (icosphere; 20*4^n
+  triangles, n <= 7).
+- ``box``: ``size = [1, 1, 1]`` (number or [x, y, z]).
+- ``plane``: ``size = [1, 1]`` (number or [x, z]) in the xz plane at y = 0,
+  facing +y; ``subdivisions = 0`` gives 2 triangles, n gives an
+  (n+1) x (n+1) grid of quads (2 (n+1)^2 triangles).
+- ``torus``: ``major_radius = 1``, ``minor_radius = 0.25`` (< major),
+  ``major_sections = 32``, ``minor_sections = 16``; the ring lies in the xz
+  plane (axis y).
+- ``cylinder``: ``radius = 0.5``, ``height = 1``, ``sections = 32``; axis y,
+  from y = -height/2 to +height/2, capped.
+
+Mesh files (OBJ, PLY, STL, OFF, glTF/GLB) are read with trimesh; a glTF
+scene is flattened into one mesh with its node transforms applied. Normals
+in the file are used when present; otherwise vertices are merged by
+position (unless the file has vertex colours) and smooth vertex normals are
+computed. Vertex colours (8-bit, taken as linear values / 255) are used
+only with ``use_vertex_colors = true`` (parts of a file without them, and
+files without them, get the object's ``color``); textures and materials in
+the file are ignored. Triangles keep the file's winding: counter-clockwise
+is front (a mirroring glTF node transform reverses it, as glTF specifies).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import re
+import tomllib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import UserError, did_you_mean, unknown_key_error
+
+__all__ = [
+    "ImageSettings",
+    "Lens",
+    "Camera",
+    "Light",
+    "SceneObject",
+    "Scene",
+    "load_scene",
+    "parse_scene",
+    "PRIMITIVES",
+    "MATERIALS",
+    "MESH_FORMATS",
+]
+
+MATERIALS = ("flat", "lambert")
+PROJECTIONS = ("perspective", "orthographic")
+LIGHT_TYPES = ("directional", "point")
+MESH_FORMATS = (".obj", ".ply", ".stl", ".off", ".gltf", ".glb")
+
+DEFAULT_LIGHT_DIRECTION = (-0.3, -1.0, -0.5)
+DEFAULT_OBJECT_COLOR = (0.8, 0.8, 0.8)
+
+_MAX_IMAGE_SIZE = 16384
+_MAX_SPP = 16384
+
+
+def _readonly(a: Any, dtype: Any, shape: tuple[int | None, ...]) -> np.ndarray:
+    arr = np.array(a, dtype=dtype, copy=True)
+    if arr.ndim != len(shape) or any(
+        want is not None and got != want for got, want in zip(arr.shape, shape)
+    ):
+        raise ValueError(f"expected an array of shape {shape}, got {arr.shape}")
+    arr.setflags(write=False)
+    return arr
+
+
+def _normalize(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
+
+
+def _lerp(a: np.ndarray, b: np.ndarray, t: float) -> np.ndarray:
+    """(1-t) a + t b, exactly a at t=0 or when a == b, exactly b at t=1."""
+    if t == 0.0 or np.array_equal(a, b):
+        return a
+    if t == 1.0:
+        return b
+    return (1.0 - t) * a + t * b
+
+
+# --------------------------------------------------------------------------
+# Public data model
+
+
+@dataclass(frozen=True)
+class ImageSettings:
+    """Output image size, samples per pixel and sample-pattern seed."""
+
+    width: int
+    height: int
+    spp: int
+    seed: int = 0
+
+    @property
+    def aspect(self) -> float:
+        """Width / height."""
+        return self.width / self.height
+
+
+@dataclass(frozen=True)
+class Lens:
+    """Thin lens: aperture radius and focus distance, both in world units."""
+
+    radius: float
+    focus_distance: float
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """A perspective or orthographic camera, optionally moving and with a lens.
+
+    ``eye``/``look_at`` are at shutter open (t=0), ``eye_close``/
+    ``look_at_close`` at shutter close (t=1); in between they move linearly.
+    ``up`` is fixed. Arrays are read-only float64 (3,).
+
+    ``fov_y`` (degrees) is the vertical field of view of a perspective
+    camera; with an explicit ``frustum`` it is the frustum's vertical angle
+    (informational; the frustum is what is used), and 0.0 for orthographic
+    cameras. ``ortho_height`` is only used by orthographic cameras without a
+    ``frustum``. A ``lens`` with radius 0 behaves as a pinhole.
+    """
+
+    projection: str
+    eye: np.ndarray
+    look_at: np.ndarray
+    up: np.ndarray
+    eye_close: np.ndarray
+    look_at_close: np.ndarray
+    fov_y: float
+    near: float
+    far: float
+    frustum: tuple[float, float, float, float] | None = None
+    ortho_height: float = 2.0
+    lens: Lens | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("eye", "look_at", "up", "eye_close", "look_at_close"):
+            object.__setattr__(self, name, _readonly(getattr(self, name), np.float64, (3,)))
+        if self.projection not in PROJECTIONS:
+            raise ValueError(f"projection must be one of {PROJECTIONS}, got {self.projection!r}")
+        if self.frustum is not None:
+            object.__setattr__(self, "frustum", tuple(float(x) for x in self.frustum))
+
+    @property
+    def moving(self) -> bool:
+        """True when the eye or look-at point moves during the shutter."""
+        return not (
+            np.array_equal(self.eye, self.eye_close)
+            and np.array_equal(self.look_at, self.look_at_close)
+        )
+
+    def eye_at(self, t: float) -> np.ndarray:
+        """Eye position at shutter time t (linear between open and close)."""
+        return _lerp(self.eye, self.eye_close, t)
+
+    def look_at_at(self, t: float) -> np.ndarray:
+        """Look-at point at shutter time t (linear between open and close)."""
+        return _lerp(self.look_at, self.look_at_close, t)
+
+    def view_matrix(self, t: float = 0.0) -> np.ndarray:
+        """4x4 world->eye matrix (OpenGL gluLookAt) at shutter time t.
+
+        t=0 is shutter open, t=1 shutter close; eye and look_at are
+        interpolated linearly. The camera looks down its -z axis.
+        """
+        eye = self.eye_at(t)
+        f = _normalize(self.look_at_at(t) - eye)
+        s = _normalize(np.cross(f, self.up))
+        u = np.cross(s, f)
+        m = np.eye(4)
+        m[0, :3] = s
+        m[1, :3] = u
+        m[2, :3] = -f
+        m[:3, 3] = -m[:3, :3] @ eye
+        return m
+
+    def frustum_window(self, aspect: float) -> tuple[float, float, float, float]:
+        """(left, right, bottom, top): the near-plane window (perspective)
+        or the view-volume extents (orthographic) for this aspect ratio."""
+        if self.frustum is not None:
+            return self.frustum
+        if self.projection == "perspective":
+            top = self.near * math.tan(math.radians(self.fov_y) / 2.0)
+        else:
+            top = self.ortho_height / 2.0
+        right = top * aspect
+        return (-right, right, -top, top)
+
+    def projection_matrix(self, aspect: float) -> np.ndarray:
+        """4x4 eye->clip matrix: glFrustum / gluPerspective or glOrtho.
+
+        ``aspect`` is image width / height; it is ignored when an explicit
+        ``frustum`` is set. Perspective clip w = -z_eye. After the divide,
+        the near plane maps to z_ndc = -1 and the far plane to +1.
+        """
+        l, r, b, t = self.frustum_window(aspect)
+        n, f = self.near, self.far
+        m = np.zeros((4, 4))
+        if self.projection == "perspective":
+            m[0, 0] = 2.0 * n / (r - l)
+            m[0, 2] = (r + l) / (r - l)
+            m[1, 1] = 2.0 * n / (t - b)
+            m[1, 2] = (t + b) / (t - b)
+            m[2, 2] = -(f + n) / (f - n)
+            m[2, 3] = -2.0 * f * n / (f - n)
+            m[3, 2] = -1.0
+        else:
+            m[0, 0] = 2.0 / (r - l)
+            m[0, 3] = -(r + l) / (r - l)
+            m[1, 1] = 2.0 / (t - b)
+            m[1, 3] = -(t + b) / (t - b)
+            m[2, 2] = -2.0 / (f - n)
+            m[2, 3] = -(f + n) / (f - n)
+            m[3, 3] = 1.0
+        return m
+
+
+@dataclass(frozen=True, eq=False)
+class Light:
+    """One light. ``direction`` (directional: unit vector from the light
+    toward the scene) is zero for point lights; ``position`` (point) is zero
+    for directional lights."""
+
+    kind: str
+    direction: np.ndarray
+    position: np.ndarray
+    color: np.ndarray
+    intensity: float
+    ambient: float
+
+    def __post_init__(self) -> None:
+        for name in ("direction", "position", "color"):
+            object.__setattr__(self, name, _readonly(getattr(self, name), np.float64, (3,)))
+
+
+@dataclass(frozen=True, eq=False)
+class SceneObject:
+    """A triangle mesh with its material and shutter-open/close transforms.
+
+    Arrays are read-only: positions/normals float64 (V,3) in object space,
+    faces int32 (F,3) counter-clockwise = front facing, colors float32 (V,3)
+    linear RGB, transforms float64 4x4 object->world.
+    """
+
+    name: str
+    positions: np.ndarray
+    normals: np.ndarray
+    faces: np.ndarray
+    colors: np.ndarray
+    material: str
+    transform_open: np.ndarray
+    transform_close: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "positions", _readonly(self.positions, np.float64, (None, 3)))
+        nv = len(self.positions)
+        object.__setattr__(self, "normals", _readonly(self.normals, np.float64, (nv, 3)))
+        object.__setattr__(self, "faces", _readonly(self.faces, np.int32, (None, 3)))
+        object.__setattr__(self, "colors", _readonly(self.colors, np.float32, (nv, 3)))
+        for name in ("transform_open", "transform_close"):
+            object.__setattr__(self, name, _readonly(getattr(self, name), np.float64, (4, 4)))
+
+    @property
+    def moving(self) -> bool:
+        """True when the open and close transforms differ."""
+        return not np.array_equal(self.transform_open, self.transform_close)
+
+    @property
+    def triangle_count(self) -> int:
+        return len(self.faces)
+
+    def world_positions(self, t: float) -> np.ndarray:
+        """(V,3) float64 world-space positions at shutter time t in [0, 1].
+
+        t=0 and t=1 apply the open/close transforms; in between the
+        positions are interpolated linearly per vertex (not the transforms).
+        """
+        t = _check_time(t)
+        p0 = self.positions @ self.transform_open[:3, :3].T + self.transform_open[:3, 3]
+        if t == 0.0 or not self.moving:
+            return p0
+        p1 = self.positions @ self.transform_close[:3, :3].T + self.transform_close[:3, 3]
+        if t == 1.0:
+            return p1
+        return (1.0 - t) * p0 + t * p1
+
+    def world_normals(self, t: float) -> np.ndarray:
+        """(V,3) float64 unit world-space normals at shutter time t in [0, 1]
+        (inverse-transpose transformed, interpolated linearly, renormalized)."""
+        t = _check_time(t)
+
+        def at(m: np.ndarray) -> np.ndarray:
+            return self.normals @ np.linalg.inv(m[:3, :3])  # == (inv(M)^T n^T)^T
+
+        n = at(self.transform_open)
+        if t != 0.0 and self.moving:
+            n1 = at(self.transform_close)
+            n = n1 if t == 1.0 else (1.0 - t) * n + t * n1
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        return n / np.where(length > 0.0, length, 1.0)
+
+
+def _check_time(t: float) -> float:
+    t = float(t)
+    if not 0.0 <= t <= 1.0:
+        raise ValueError(f"shutter time must be in [0, 1], got {t}")
+    return t
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """A loaded scene. ``digest`` is the sha256 (hex) of the scene file's
+    bytes and the bytes of every mesh file it loads, in object order; it
+    identifies the inputs and is not changed by :meth:`replace`."""
+
+    image: ImageSettings
+    camera: Camera
+    light: Light
+    background: np.ndarray
+    objects: tuple[SceneObject, ...]
+    path: Path | None = None
+    digest: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "background", _readonly(self.background, np.float32, (3,)))
+        object.__setattr__(self, "objects", tuple(self.objects))
+
+    def replace(self, **changes: Any) -> "Scene":
+        """A copy with some fields replaced (``dataclasses.replace``), e.g.
+        ``scene.replace(image=dataclasses.replace(scene.image, spp=64))``."""
+        return dataclasses.replace(self, **changes)
+
+    @property
+    def moving(self) -> bool:
+        """True when the camera or any object moves during the shutter."""
+        return self.camera.moving or any(o.moving for o in self.objects)
+
+    @property
+    def has_lens(self) -> bool:
+        """True when the camera has a thin lens with a non-zero radius."""
+        return self.camera.lens is not None and self.camera.lens.radius > 0.0
+
+    @property
+    def triangle_count(self) -> int:
+        return sum(len(o.faces) for o in self.objects)
+
+
+# --------------------------------------------------------------------------
+# Validation helpers. `ctx` is the file name as shown to the user; `key` is
+# the dotted key path inside the file.
+
+_TOML_TYPE_NAMES = {
+    bool: "boolean",
+    int: "integer",
+    float: "float",
+    str: "string",
+    list: "array",
+    dict: "table",
+}
+
+
+def _type_name(v: Any) -> str:
+    for t, name in _TOML_TYPE_NAMES.items():
+        if type(v) is t:
+            if t is str:
+                return f"string {v!r}" if len(v) <= 40 else "string"
+            if t in (int, float, bool):
+                return f"{name} {str(v).lower() if t is bool else v}"
+            return name
+    return type(v).__name__
+
+
+class _Reader:
+    def __init__(self, ctx: str) -> None:
+        self.ctx = ctx
+
+    def error(self, key: str, message: str) -> UserError:
+        where = f"{self.ctx}: {key}" if key else self.ctx
+        return UserError(f"{where}: {message}")
+
+    def table(self, value: Any, key: str) -> dict:
+        if not isinstance(value, dict):
+            return self._raise(key, f"expected a table, got {_type_name(value)}")
+        return value
+
+    def _raise(self, key: str, message: str) -> Any:
+        raise self.error(key, message)
+
+    def check_keys(self, tbl: Mapping[str, Any], key: str, known: set[str] | tuple[str, ...]) -> None:
+        for k in tbl:
+            if k not in known:
+                where = f"{self.ctx}: {key}" if key else self.ctx
+                raise unknown_key_error(where, _printable(k), known)
+
+    @staticmethod
+    def sub(key: str, name: str) -> str:
+        return f"{key}.{name}" if key else name
+
+    def require(self, tbl: Mapping[str, Any], key: str, name: str, why: str = "") -> Any:
+        if name not in tbl:
+            raise self.error(self.sub(key, name), f"missing required key{why}")
+        return tbl[name]
+
+    def require_table(self, tbl: Mapping[str, Any], name: str) -> dict:
+        if name not in tbl:
+            raise self.error(name, f"missing required table [{name}]")
+        return self.table(tbl[name], name)
+
+    def number(self, v: Any, key: str) -> float:
+        if type(v) not in (int, float):
+            raise self.error(key, f"expected a number, got {_type_name(v)}")
+        x = float(v)
+        if not math.isfinite(x):
+            raise self.error(key, f"expected a finite number, got {v}")
+        return x
+
+    def integer(self, v: Any, key: str) -> int:
+        if type(v) is not int:
+            raise self.error(key, f"expected an integer, got {_type_name(v)}")
+        return v
+
+    def string(self, v: Any, key: str) -> str:
+        if type(v) is not str:
+            raise self.error(key, f"expected a string, got {_type_name(v)}")
+        return v
+
+    def boolean(self, v: Any, key: str) -> bool:
+        if type(v) is not bool:
+            raise self.error(key, f"expected true or false, got {_type_name(v)}")
+        return v
+
+    def numbers(self, v: Any, key: str, n: int) -> np.ndarray:
+        if not isinstance(v, list):
+            raise self.error(key, f"expected {n} numbers, got {_type_name(v)}")
+        if len(v) != n:
+            raise self.error(key, f"expected {n} numbers, got {len(v)}")
+        return np.array([self.number(x, f"{key}[{i}]") for i, x in enumerate(v)])
+
+    def number_or_numbers(self, v: Any, key: str, n: int) -> np.ndarray:
+        if isinstance(v, list):
+            return self.numbers(v, key, n)
+        if type(v) not in (int, float):
+            raise self.error(key, f"expected a number or {n} numbers, got {_type_name(v)}")
+        return np.full(n, self.number(v, key))
+
+    def color(self, v: Any, key: str) -> np.ndarray:
+        c = self.numbers(v, key, 3)
+        if np.any(c < 0.0):
+            raise self.error(key, f"colour components must be >= 0, got {_fmt(c)}")
+        return c
+
+    def choice(self, v: Any, key: str, choices: tuple[str, ...], what: str) -> str:
+        s = self.string(v, key)
+        if s not in choices:
+            raise self.error(
+                key, f"unknown {what} '{s}'{did_you_mean(s, choices)}; expected one of: {', '.join(choices)}"
+            )
+        return s
+
+
+def _printable(text: str) -> str:
+    """Escape control characters so a message stays on one line."""
+    return text if text.isprintable() else text.encode("unicode_escape").decode("ascii")
+
+
+def _fmt(v: np.ndarray) -> str:
+    return "[" + ", ".join(f"{x:g}" for x in v) + "]"
+
+
+# --------------------------------------------------------------------------
+# Primitives. Each builder returns (positions, normals, faces) with
+# counter-clockwise outward-facing triangles.
+
+
+@dataclass(frozen=True)
+class _Param:
+    kind: str  # "number" | "int" | "vec2" | "vec3"
+    default: Any
+    minimum: float  # exclusive lower bound for numbers, inclusive for ints
+    maximum: float | None = None
+
+
+_Mesh = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+def _sphere(radius: float, subdivisions: int) -> _Mesh:
+    import trimesh
+
+    m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=1.0)
+    unit = np.asarray(m.vertices, dtype=np.float64)
+    unit /= np.linalg.norm(unit, axis=1, keepdims=True)
+    return unit * radius, unit, np.asarray(m.faces)
+
+
+def _box(size: np.ndarray) -> _Mesh:
+    half = np.asarray(size, dtype=np.float64) / 2.0
+    axes = np.eye(3)
+    positions, normals, faces = [], [], []
+    for axis in range(3):
+        u_axis, v_axis = (axis + 1) % 3, (axis + 2) % 3  # e_u x e_v = e_axis
+        for sign in (1.0, -1.0):
+            n = axes[axis] * sign
+            u = axes[u_axis] * sign  # flip u so that u x v = n for both signs
+            v = axes[v_axis]
+            base = len(positions)
+            for su, sv in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
+                positions.append((n + su * u + sv * v) * half)
+                normals.append(n)
+            faces += [(base, base + 1, base + 2), (base, base + 2, base + 3)]
+    return np.array(positions), np.array(normals), np.array(faces)
+
+
+def _plane(size: np.ndarray, subdivisions: int) -> _Mesh:
+    k = subdivisions + 2  # vertices per side
+    xs = np.linspace(-size[0] / 2.0, size[0] / 2.0, k)
+    zs = np.linspace(-size[1] / 2.0, size[1] / 2.0, k)
+    gx, gz = np.meshgrid(xs, zs, indexing="ij")  # [i, j] -> (x_i, z_j)
+    positions = np.stack([gx.ravel(), np.zeros(k * k), gz.ravel()], axis=1)
+    normals = np.tile([0.0, 1.0, 0.0], (k * k, 1))
+    i, j = np.meshgrid(np.arange(k - 1), np.arange(k - 1), indexing="ij")
+    a = (i * k + j).ravel()  # (x_i, z_j)
+    b = a + 1  # (x_i, z_j+1)
+    c = a + k  # (x_i+1, z_j)
+    d = c + 1  # (x_i+1, z_j+1)
+    # (+z) x (+x) = +y, so (a, b, c) is counter-clockwise seen from +y.
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([c, b, d], 1)])
+    return positions, normals, faces
+
+
+def _torus(major_radius: float, minor_radius: float, major_sections: int, minor_sections: int) -> _Mesh:
+    theta = 2.0 * np.pi * np.arange(major_sections) / major_sections  # around the y axis
+    phi = 2.0 * np.pi * np.arange(minor_sections) / minor_sections  # around the tube
+    th, ph = np.meshgrid(theta, phi, indexing="ij")
+    radial = np.stack([np.cos(th), np.zeros_like(th), -np.sin(th)], axis=-1)
+    up = np.array([0.0, 1.0, 0.0])
+    normals = np.cos(ph)[..., None] * radial + np.sin(ph)[..., None] * up
+    positions = major_radius * radial + minor_radius * normals
+    i, j = np.meshgrid(np.arange(major_sections), np.arange(minor_sections), indexing="ij")
+    i1 = (i + 1) % major_sections
+    j1 = (j + 1) % minor_sections
+    a = (i * minor_sections + j).ravel()
+    b = (i1 * minor_sections + j).ravel()
+    c = (i1 * minor_sections + j1).ravel()
+    d = (i * minor_sections + j1).ravel()
+    # d(theta) x d(phi) points along the outward normal for this parametrization.
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    return positions.reshape(-1, 3), normals.reshape(-1, 3), faces
+
+
+def _cylinder(radius: float, height: float, sections: int) -> _Mesh:
+    ang = 2.0 * np.pi * np.arange(sections) / sections
+    radial = np.stack([np.cos(ang), np.zeros(sections), -np.sin(ang)], axis=1)  # CCW seen from +y
+    h = height / 2.0
+    up = np.array([0.0, 1.0, 0.0])
+    ring_lo = radius * radial - h * up
+    ring_hi = radius * radial + h * up
+    k = np.arange(sections)
+    k1 = (k + 1) % sections
+    # side: vertices [0, s) bottom ring, [s, 2s) top ring
+    side_faces = np.concatenate(
+        [np.stack([k, k1, k1 + sections], 1), np.stack([k, k1 + sections, k + sections], 1)]
+    )
+    # top cap: centre at 2s, ring at 2s+1 ..; bottom cap: centre at 3s+1, ring after
+    top_c = 2 * sections
+    bot_c = 3 * sections + 1
+    top_faces = np.stack([np.full(sections, top_c), top_c + 1 + k, top_c + 1 + k1], 1)
+    bot_faces = np.stack([np.full(sections, bot_c), bot_c + 1 + k1, bot_c + 1 + k], 1)
+    positions = np.concatenate([ring_lo, ring_hi, [h * up], ring_hi, [-h * up], ring_lo])
+    normals = np.concatenate(
+        [radial, radial, np.tile(up, (sections + 1, 1)), np.tile(-up, (sections + 1, 1))]
+    )
+    faces = np.concatenate([side_faces, top_faces, bot_faces])
+    return positions, normals, faces
+
+
+_PRIMITIVE_PARAMS: dict[str, dict[str, _Param]] = {
+    "sphere": {
+        "radius": _Param("number", 1.0, 0.0),
+        "subdivisions": _Param("int", 3, 0, 7),
+    },
+    "box": {"size": _Param("vec3", (1.0, 1.0, 1.0), 0.0)},
+    "plane": {
+        "size": _Param("vec2", (1.0, 1.0), 0.0),
+        "subdivisions": _Param("int", 0, 0, 1023),
+    },
+    "torus": {
+        "major_radius": _Param("number", 1.0, 0.0),
+        "minor_radius": _Param("number", 0.25, 0.0),
+        "major_sections": _Param("int", 32, 3, 4096),
+        "minor_sections": _Param("int", 16, 3, 4096),
+    },
+    "cylinder": {
+        "radius": _Param("number", 0.5, 0.0),
+        "height": _Param("number", 1.0, 0.0),
+        "sections": _Param("int", 32, 3, 65536),
+    },
+}
+
+_PRIMITIVE_BUILDERS: dict[str, Callable[..., _Mesh]] = {
+    "sphere": _sphere,
+    "box": _box,
+    "plane": _plane,
+    "torus": _torus,
+    "cylinder": _cylinder,
+}
+
+PRIMITIVES = tuple(_PRIMITIVE_PARAMS)
+
+
+def _primitive_mesh(r: _Reader, obj: dict, key: str, primitive: str) -> _Mesh:
+    params: dict[str, Any] = {}
+    for name, spec in _PRIMITIVE_PARAMS[primitive].items():
+        pkey = r.sub(key, name)
+        if name not in obj:
+            params[name] = np.array(spec.default) if spec.kind.startswith("vec") else spec.default
+            continue
+        v = obj[name]
+        if spec.kind == "int":
+            x = r.integer(v, pkey)
+            if x < spec.minimum or (spec.maximum is not None and x > spec.maximum):
+                raise r.error(pkey, f"must be in [{spec.minimum:g}, {spec.maximum:g}], got {x}")
+            params[name] = x
+            continue
+        if spec.kind == "number":
+            val = np.array([r.number(v, pkey)])
+        else:
+            val = r.number_or_numbers(v, pkey, 2 if spec.kind == "vec2" else 3)
+        if np.any(val <= spec.minimum):
+            raise r.error(pkey, f"must be > {spec.minimum:g}, got {_fmt(val) if val.size > 1 else f'{val[0]:g}'}")
+        params[name] = float(val[0]) if spec.kind == "number" else val
+    if primitive == "torus" and params["minor_radius"] >= params["major_radius"]:
+        raise r.error(
+            r.sub(key, "minor_radius"),
+            f"must be < major_radius ({params['major_radius']:g}), got {params['minor_radius']:g}",
+        )
+    return _PRIMITIVE_BUILDERS[primitive](**params)
+
+
+# --------------------------------------------------------------------------
+# Mesh files
+
+
+@dataclass
+class _LoadedMesh:
+    positions: np.ndarray
+    normals: np.ndarray
+    faces: np.ndarray
+    vertex_colors: np.ndarray | None
+    data: bytes
+
+
+def _gltf_buffer_bytes(path: Path) -> bytes:
+    """Bytes of the external buffers a .gltf file references (for the digest)."""
+    if path.suffix.lower() != ".gltf":
+        return b""
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+        uris = [b.get("uri") for b in doc.get("buffers", []) if isinstance(b, dict)]
+    except (ValueError, AttributeError):
+        return b""  # trimesh reports the broken file
+    out = b""
+    for uri in uris:
+        if isinstance(uri, str) and not uri.startswith("data:"):
+            extra = path.parent / uri
+            if extra.is_file():
+                out += len(uri).to_bytes(8, "little") + uri.encode() + extra.read_bytes()
+    return out
+
+
+def _load_mesh_file(r: _Reader, key: str, written: str, resolved: Path) -> _LoadedMesh:
+    import trimesh
+
+    shown = _printable(f"'{written}' (resolved to '{resolved}')")
+    if not resolved.exists():
+        raise r.error(key, f"mesh file not found: {shown}")
+    if not resolved.is_file():
+        raise r.error(key, f"mesh path is not a file: {shown}")
+    suffix = resolved.suffix.lower()
+    if suffix not in MESH_FORMATS:
+        raise r.error(
+            key, f"unsupported mesh format '{suffix or resolved.name}' for {shown}; expected one of: {', '.join(MESH_FORMATS)}"
+        )
+    try:
+        data = resolved.read_bytes() + _gltf_buffer_bytes(resolved)
+    except OSError as e:
+        raise r.error(key, f"cannot read mesh file {shown}: {e.strerror or e}") from None
+    try:
+        loaded = trimesh.load_scene(str(resolved), process=False)
+        parts = [
+            (np.asarray(loaded.graph[node][0], dtype=np.float64), loaded.geometry[name])
+            for node in loaded.graph.nodes_geometry
+            for name in [loaded.graph[node][1]]
+            if isinstance(loaded.geometry.get(name), trimesh.Trimesh)
+        ]
+    except Exception as e:  # trimesh raises many kinds on bad files
+        detail = _printable((str(e).strip().splitlines() or [type(e).__name__])[0])
+        raise r.error(key, f"cannot load mesh file {shown}: {detail}") from None
+
+    positions, normals, faces, colors = [], [], [], []
+    offset = 0
+    for transform, part in parts:
+        if len(part.faces) == 0:
+            continue
+        p, n, f, c = _mesh_part(r, key, shown, part, transform)
+        positions.append(p)
+        normals.append(n)
+        faces.append(f + offset)
+        colors.append(c)
+        offset += len(p)
+    if not faces:
+        raise r.error(key, f"mesh file has no triangles: {shown}")
+    if offset >= 2**31:
+        raise r.error(key, f"mesh file has too many vertices: {shown}")
+    has_colors = any(c is not None for c in colors)
+    return _LoadedMesh(
+        positions=np.concatenate(positions),
+        normals=np.concatenate(normals),
+        faces=np.concatenate(faces).astype(np.int32),
+        # parts without vertex colours get NaN rows, filled with the object's colour
+        vertex_colors=np.concatenate(
+            [c if c is not None else np.full((len(p), 3), np.nan, np.float32) for p, c in zip(positions, colors)]
+        )
+        if has_colors
+        else None,
+        data=data,
+    )
+
+
+def _mesh_part(
+    r: _Reader, key: str, shown: str, mesh: Any, transform: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """One trimesh geometry placed by its scene-graph transform:
+    (positions, unit normals, faces, vertex colours or None)."""
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    finite = np.all(np.isfinite(vertices), axis=1)
+    if not np.all(finite):
+        bad = int(np.flatnonzero(~finite)[0])
+        raise r.error(key, f"mesh file has non-finite vertex coordinates (vertex {bad}): {shown}")
+    faces = np.asarray(mesh.faces)
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise r.error(key, f"mesh file has face indices out of range: {shown}")
+
+    file_normals = mesh._cache["vertex_normals"]  # normals read from the file, if any
+    has_normals = file_normals is not None and np.shape(file_normals) == vertices.shape
+    if has_normals and not np.all(np.isfinite(file_normals)):
+        raise r.error(key, f"mesh file has non-finite vertex normals: {shown}")
+    has_colors = mesh.visual.kind == "vertex"
+    if not has_normals and not has_colors:
+        mesh.merge_vertices()  # so that smooth normals can be computed
+    mesh.remove_unreferenced_vertices()
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    normals = np.array(mesh.vertex_normals, dtype=np.float64)
+    colors = None
+    if has_colors:
+        colors = np.asarray(mesh.visual.vertex_colors)[:, :3].astype(np.float32) / 255.0
+
+    linear = transform[:3, :3]
+    if not np.allclose(transform, np.eye(4)):
+        vertices = vertices @ linear.T + transform[:3, 3]
+        if not np.all(np.isfinite(vertices)):
+            raise r.error(key, f"mesh file's node transforms give non-finite coordinates: {shown}")
+        det = np.linalg.det(linear)
+        if abs(det) < 1e-300:
+            raise r.error(key, f"mesh file has a singular node transform: {shown}")
+        normals = normals @ np.linalg.inv(linear)
+        if det < 0.0:  # a mirroring node transform reverses the winding (as glTF specifies)
+            faces = faces[:, ::-1]
+    length = np.linalg.norm(normals, axis=1)
+    zero = ~(length > 1e-12)
+    normals[zero] = (0.0, 0.0, 1.0)  # vertices used only by degenerate triangles
+    normals /= np.where(zero, 1.0, length)[:, None]
+    return vertices, normals, faces, colors
+
+
+# --------------------------------------------------------------------------
+# Sections
+
+
+def _parse_image(r: _Reader, data: dict) -> ImageSettings:
+    tbl = r.require_table(data, "image")
+    r.check_keys(tbl, "image", ("width", "height", "spp", "seed"))
+    values = {}
+    for name, limit in (("width", _MAX_IMAGE_SIZE), ("height", _MAX_IMAGE_SIZE), ("spp", _MAX_SPP)):
+        key = f"image.{name}"
+        x = r.integer(r.require(tbl, "image", name), key)
+        if x <= 0:
+            raise r.error(key, f"must be > 0, got {x}")
+        if x > limit:
+            raise r.error(key, f"must be <= {limit}, got {x}")
+        values[name] = x
+    seed = r.integer(tbl.get("seed", 0), "image.seed")
+    if not 0 <= seed < 2**64:
+        raise r.error("image.seed", f"must be in [0, 2^64), got {seed}")
+    return ImageSettings(seed=seed, **values)
+
+
+_CAMERA_KEYS = (
+    "projection", "eye", "look_at", "up", "fov_y", "near", "far", "frustum",
+    "ortho_height", "eye_close", "look_at_close", "lens",
+)
+
+
+def _crosses_zero(a: np.ndarray, b: np.ndarray) -> bool:
+    """True if the segment (1-t) a + t b, t in [0, 1], passes (nearly) through 0."""
+    na, nb = np.linalg.norm(a), np.linalg.norm(b)
+    if na < 1e-9 or nb < 1e-9:
+        return True
+    if np.dot(a, b) > 0.0:
+        return False
+    return np.linalg.norm(np.cross(a, b)) <= 1e-9 * na * nb
+
+
+def _parse_camera(r: _Reader, data: dict) -> Camera:
+    tbl = r.require_table(data, "camera")
+    r.check_keys(tbl, "camera", _CAMERA_KEYS)
+    projection = r.choice(tbl.get("projection", "perspective"), "camera.projection", PROJECTIONS, "projection")
+    eye = r.numbers(r.require(tbl, "camera", "eye"), "camera.eye", 3)
+    look_at = r.numbers(r.require(tbl, "camera", "look_at"), "camera.look_at", 3)
+    up = r.numbers(tbl.get("up", [0.0, 1.0, 0.0]), "camera.up", 3)
+    eye_close = r.numbers(tbl["eye_close"], "camera.eye_close", 3) if "eye_close" in tbl else eye
+    look_at_close = (
+        r.numbers(tbl["look_at_close"], "camera.look_at_close", 3) if "look_at_close" in tbl else look_at
+    )
+    if np.linalg.norm(up) < 1e-12:
+        raise r.error("camera.up", "must not be the zero vector")
+    up_unit = up / np.linalg.norm(up)
+    d0, d1 = look_at - eye, look_at_close - eye_close
+    for d, when, keys in ((d0, "", "eye/look_at"), (d1, " at shutter close", "eye_close/look_at_close")):
+        if np.linalg.norm(d) < 1e-12 * max(1.0, np.linalg.norm(eye), np.linalg.norm(look_at)):
+            raise r.error("camera", f"degenerate view: look_at equals eye{when} ({keys} = {_fmt(eye if not when else eye_close)})")
+        if np.linalg.norm(np.cross(d / np.linalg.norm(d), up_unit)) < 1e-6:
+            raise r.error("camera.up", f"up {_fmt(up)} is parallel to the view direction {_fmt(d)}{when}")
+    if _crosses_zero(d0, d1):
+        raise r.error("camera", "degenerate view: eye and look_at coincide during the shutter")
+    if _crosses_zero(np.cross(d0, up_unit), np.cross(d1, up_unit)):
+        raise r.error("camera.up", f"up {_fmt(up)} becomes parallel to the view direction during the shutter")
+
+    near = r.number(r.require(tbl, "camera", "near"), "camera.near")
+    if near <= 0.0:
+        raise r.error("camera.near", f"must be > 0, got {near:g}")
+    far = r.number(r.require(tbl, "camera", "far"), "camera.far")
+    if far <= near:
+        raise r.error("camera.far", f"must be > near ({near:g}), got {far:g}")
+
+    frustum = None
+    if "frustum" in tbl:
+        fr = r.numbers(tbl["frustum"], "camera.frustum", 4)
+        if not fr[0] < fr[1]:
+            raise r.error("camera.frustum", f"left must be < right, got {_fmt(fr)}")
+        if not fr[2] < fr[3]:
+            raise r.error("camera.frustum", f"bottom must be < top, got {_fmt(fr)}")
+        frustum = (float(fr[0]), float(fr[1]), float(fr[2]), float(fr[3]))
+
+    ortho_height = 2.0
+    fov_y = 0.0
+    lens = None
+    if projection == "perspective":
+        if "ortho_height" in tbl:
+            raise r.error("camera.ortho_height", "applies only to orthographic cameras; use fov_y or frustum")
+        if "fov_y" in tbl:
+            fov_y = r.number(tbl["fov_y"], "camera.fov_y")
+            if not 0.0 < fov_y < 180.0:
+                raise r.error("camera.fov_y", f"must be in (0, 180) degrees, got {fov_y:g}")
+        elif frustum is None:
+            raise r.error("camera.fov_y", "missing required key (or give camera.frustum)")
+        if frustum is not None:
+            fov_y = math.degrees(math.atan2(frustum[3], near) - math.atan2(frustum[2], near))
+        if "lens" in tbl:
+            lens = _parse_lens(r, tbl["lens"], float(np.linalg.norm(d0)))
+    else:
+        if "fov_y" in tbl:
+            raise r.error("camera.fov_y", "applies only to perspective cameras; use ortho_height or frustum")
+        if "lens" in tbl:
+            raise r.error("camera.lens", "a thin lens needs a perspective camera, but projection is 'orthographic'")
+        if "ortho_height" in tbl:
+            ortho_height = r.number(tbl["ortho_height"], "camera.ortho_height")
+            if ortho_height <= 0.0:
+                raise r.error("camera.ortho_height", f"must be > 0, got {ortho_height:g}")
+    return Camera(
+        projection=projection,
+        eye=eye,
+        look_at=look_at,
+        up=up,
+        eye_close=eye_close,
+        look_at_close=look_at_close,
+        fov_y=fov_y,
+        near=near,
+        far=far,
+        frustum=frustum,
+        ortho_height=ortho_height,
+        lens=lens,
+    )
+
+
+def _parse_lens(r: _Reader, value: Any, default_focus: float) -> Lens:
+    tbl = r.table(value, "camera.lens")
+    r.check_keys(tbl, "camera.lens", ("radius", "focus_distance"))
+    radius = r.number(r.require(tbl, "camera.lens", "radius"), "camera.lens.radius")
+    if radius < 0.0:
+        raise r.error("camera.lens.radius", f"must be >= 0, got {radius:g}")
+    focus = r.number(tbl.get("focus_distance", default_focus), "camera.lens.focus_distance")
+    if focus <= 0.0:
+        raise r.error("camera.lens.focus_distance", f"must be > 0, got {focus:g}")
+    return Lens(radius=radius, focus_distance=focus)
+
+
+def _parse_background(r: _Reader, data: dict) -> np.ndarray:
+    if "background" not in data:
+        return np.zeros(3)
+    tbl = r.table(data["background"], "background")
+    r.check_keys(tbl, "background", ("color",))
+    return r.color(tbl.get("color", [0.0, 0.0, 0.0]), "background.color")
+
+
+def _parse_light(r: _Reader, data: dict) -> Light:
+    tbl = r.table(data.get("light", {}), "light")
+    r.check_keys(tbl, "light", ("type", "direction", "position", "color", "intensity", "ambient"))
+    kind = r.choice(tbl.get("type", "directional"), "light.type", LIGHT_TYPES, "light type")
+    direction = np.zeros(3)
+    position = np.zeros(3)
+    if kind == "directional":
+        if "position" in tbl:
+            raise r.error("light.position", "applies only to point lights; use direction")
+        direction = r.numbers(tbl.get("direction", list(DEFAULT_LIGHT_DIRECTION)), "light.direction", 3)
+        length = np.linalg.norm(direction)
+        if length < 1e-12:
+            raise r.error("light.direction", "must not be the zero vector")
+        direction = direction / length
+    else:
+        if "direction" in tbl:
+            raise r.error("light.direction", "applies only to directional lights; use position")
+        position = r.numbers(r.require(tbl, "light", "position", " for a point light"), "light.position", 3)
+    color = r.color(tbl.get("color", [1.0, 1.0, 1.0]), "light.color")
+    intensity = r.number(tbl.get("intensity", 1.0), "light.intensity")
+    if intensity < 0.0:
+        raise r.error("light.intensity", f"must be >= 0, got {intensity:g}")
+    ambient = r.number(tbl.get("ambient", 0.1), "light.ambient")
+    if ambient < 0.0:
+        raise r.error("light.ambient", f"must be >= 0, got {ambient:g}")
+    return Light(kind=kind, direction=direction, position=position, color=color, intensity=intensity, ambient=ambient)
+
+
+_OBJECT_KEYS = ("name", "primitive", "mesh", "material", "color", "use_vertex_colors", "open", "close")
+_TRANSFORM_KEYS = ("translate", "rotate", "scale")
+
+
+def _rotation(deg: np.ndarray) -> np.ndarray:
+    """Rotation about x, then y, then z (angles in degrees): Rz @ Ry @ Rx."""
+    ax, ay, az = np.radians(deg)
+    cx, sx, cy, sy, cz, sz = np.cos(ax), np.sin(ax), np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
+    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def _trs(translate: np.ndarray, rotate: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, :3] = _rotation(rotate) @ np.diag(scale)
+    m[:3, 3] = translate
+    return m
+
+
+def _parse_transform(r: _Reader, value: Any, key: str, base: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    tbl = r.table(value, key)
+    r.check_keys(tbl, key, _TRANSFORM_KEYS)
+    out = dict(base)
+    if "translate" in tbl:
+        out["translate"] = r.numbers(tbl["translate"], f"{key}.translate", 3)
+    if "rotate" in tbl:
+        out["rotate"] = r.numbers(tbl["rotate"], f"{key}.rotate", 3)
+    if "scale" in tbl:
+        s = r.number_or_numbers(tbl["scale"], f"{key}.scale", 3)
+        if np.any(s <= 0.0):
+            raise r.error(f"{key}.scale", f"must be > 0 (mirroring is not supported), got {_fmt(s)}")
+        out["scale"] = s
+    return out
+
+
+def _parse_object(
+    r: _Reader, value: Any, index: int, base_dir: Path, mesh_cache: dict[Path, _LoadedMesh]
+) -> tuple[SceneObject, bytes | None]:
+    key = f"objects[{index}]"
+    obj = r.table(value, key)
+    primitive = None
+    if "primitive" in obj:
+        primitive = r.choice(obj["primitive"], f"{key}.primitive", PRIMITIVES, "primitive")
+    mesh_path = r.string(obj["mesh"], f"{key}.mesh") if "mesh" in obj else None
+    known = set(_OBJECT_KEYS) | (set(_PRIMITIVE_PARAMS[primitive]) if primitive else set())
+    for k in obj:
+        owners = [name for name, params in _PRIMITIVE_PARAMS.items() if k in params]
+        if k not in known and owners:
+            takes = (
+                f"{primitive} takes: {', '.join(_PRIMITIVE_PARAMS[primitive])}"
+                if primitive
+                else "a mesh object takes none"
+            )
+            raise r.error(
+                key, f"unknown key '{k}': it is a parameter of primitive {', '.join(owners)}; {takes}"
+            )
+    r.check_keys(obj, key, known)
+    if primitive is not None and mesh_path is not None:
+        raise r.error(key, "give either 'primitive' or 'mesh', not both")
+    if primitive is None and mesh_path is None:
+        raise r.error(
+            key, f"missing required key 'primitive' ({', '.join(PRIMITIVES)}) or 'mesh' (a mesh file path)"
+        )
+
+    name = r.string(obj.get("name", f"object{index}"), f"{key}.name")
+    if not name:
+        raise r.error(f"{key}.name", "must not be empty")
+    material = r.choice(obj.get("material", "lambert"), f"{key}.material", MATERIALS, "material")
+    color = r.color(obj.get("color", list(DEFAULT_OBJECT_COLOR)), f"{key}.color")
+    use_vertex_colors = r.boolean(obj.get("use_vertex_colors", False), f"{key}.use_vertex_colors")
+
+    identity = {"translate": np.zeros(3), "rotate": np.zeros(3), "scale": np.ones(3)}
+    t_open = _parse_transform(r, obj["open"], f"{key}.open", identity) if "open" in obj else identity
+    t_close = _parse_transform(r, obj["close"], f"{key}.close", t_open) if "close" in obj else t_open
+
+    data = None
+    vertex_colors = None
+    if primitive is not None:
+        positions, normals, faces = _primitive_mesh(r, obj, key, primitive)
+    else:
+        assert mesh_path is not None
+        if not mesh_path:
+            raise r.error(f"{key}.mesh", "must not be empty")
+        resolved = (base_dir / mesh_path).resolve()
+        if resolved not in mesh_cache:
+            mesh_cache[resolved] = _load_mesh_file(r, f"{key}.mesh", mesh_path, resolved)
+        loaded = mesh_cache[resolved]
+        positions, normals, faces = loaded.positions, loaded.normals, loaded.faces
+        vertex_colors = loaded.vertex_colors
+        data = loaded.data
+    if use_vertex_colors and vertex_colors is not None:
+        colors = np.where(np.isnan(vertex_colors), color.astype(np.float32), vertex_colors)
+    else:
+        colors = np.broadcast_to(color.astype(np.float32), (len(positions), 3))
+    scene_object = SceneObject(
+        name=name,
+        positions=positions,
+        normals=normals,
+        faces=faces,
+        colors=colors,
+        material=material,
+        transform_open=_trs(**t_open),
+        transform_close=_trs(**t_close),
+    )
+    return scene_object, data
+
+
+def _parse_objects(r: _Reader, data: dict, base_dir: Path) -> tuple[tuple[SceneObject, ...], list[bytes]]:
+    value = data.get("objects", [])
+    if not isinstance(value, list):
+        raise r.error("objects", f"expected an array of tables ([[objects]]), got {_type_name(value)}")
+    objects: list[SceneObject] = []
+    mesh_bytes: list[bytes] = []
+    mesh_cache: dict[Path, _LoadedMesh] = {}
+    seen: dict[str, int] = {}
+    for i, item in enumerate(value):
+        obj, data_bytes = _parse_object(r, item, i, base_dir, mesh_cache)
+        if obj.name in seen:
+            raise r.error(f"objects[{i}].name", f"duplicate name '{obj.name}' (also objects[{seen[obj.name]}])")
+        seen[obj.name] = i
+        objects.append(obj)
+        if data_bytes is not None:
+            mesh_bytes.append(data_bytes)
+    return tuple(objects), mesh_bytes
+
+
+_TOP_LEVEL_KEYS = ("image", "camera", "background", "light", "objects")
+
+
+def _parse(data: dict, where: str, base_dir: Path, source: bytes | None, path: Path | None) -> Scene:
+    r = _Reader(where)
+    if not isinstance(data, dict):
+        raise UserError(f"{where}: expected a TOML table at the top level, got {_type_name(data)}")
+    r.check_keys(data, "", _TOP_LEVEL_KEYS)
+    image = _parse_image(r, data)
+    camera = _parse_camera(r, data)
+    background = _parse_background(r, data)
+    light = _parse_light(r, data)
+    objects, mesh_bytes = _parse_objects(r, data, base_dir)
+
+    h = hashlib.sha256()
+    if source is None:
+        source = json.dumps(data, sort_keys=True, default=repr).encode()
+    for chunk in (source, *mesh_bytes):
+        h.update(len(chunk).to_bytes(8, "little"))
+        h.update(chunk)
+    return Scene(
+        image=image,
+        camera=camera,
+        light=light,
+        background=background,
+        objects=objects,
+        path=path,
+        digest=h.hexdigest(),
+    )
+
+
+def parse_scene(data: dict, *, where: str = "<scene>", base_dir: Path = Path(".")) -> Scene:
+    """Build a :class:`Scene` from an already-parsed TOML document.
+
+    ``where`` names the source in error messages; mesh paths are resolved
+    against ``base_dir``. The digest covers a canonical JSON form of
+    ``data`` and the bytes of every mesh file loaded.
+    """
+    return _parse(data, where, Path(base_dir), None, None)
+
+
+_TOML_POS = re.compile(r"\s*\(at line (\d+), column (\d+)\)\s*$")
+_TOML_END = re.compile(r"\s*\(at end of document\)\s*$")
+
+
+def _toml_error(where: str, text: str, err: tomllib.TOMLDecodeError) -> UserError:
+    msg = str(err).strip().splitlines()[0] if str(err).strip() else "syntax error"
+    m = _TOML_POS.search(msg)
+    if m:
+        line, col = int(m.group(1)), int(m.group(2))
+        msg = msg[: m.start()]
+    elif _TOML_END.search(msg):
+        lines = text.split("\n")
+        line, col = len(lines), len(lines[-1]) + 1
+        msg = _TOML_END.sub("", msg) + " at end of file"
+    else:
+        return UserError(f"{where}: invalid TOML: {msg}")
+    return UserError(f"{where}: line {line}, column {col}: invalid TOML: {msg}")
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Load and validate a TOML scene file (see the module docstring).
+
+    Raises :class:`UserError` with one line naming the file and key path
+    for any problem in the file or in the mesh files it references.
+    """
+    p = Path(path)
+    where = str(path)
+    try:
+        source = p.read_bytes()
+    except FileNotFoundError:
+        raise UserError(f"{where}: scene file not found (resolved to '{p.resolve()}')") from None
+    except IsADirectoryError:
+        raise UserError(f"{where}: is a directory, expected a TOML scene file") from None
+    except OSError as e:
+        raise UserError(f"{where}: cannot read scene file: {e.strerror or e}") from None
+    try:
+        text = source.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise UserError(f"{where}: not valid UTF-8 text (byte {e.start})") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise _toml_error(where, text, e) from None
+    return _parse(data, where, p.parent, source, p)

@@ -1,0 +1,103 @@
+"""Conservativeness of triangle setup, the traverser and the tile test.
+
+Property (PIPELINE §2.3): the tile test never rejects a (tile, sample) pair
+that the exact sample test accepts, and the intervals (u^, v^, t^, z^) it
+outputs contain that sample's (u, v, t) and depth. Checked with hypothesis on
+random moving, defocused triangles, including ones whose vertex paths cross
+w = 0 during the shutter.
+"""
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from triangles import moving_triangle, sample_inside_points, setup_and_tiles
+from units.triangle_setup import ST_DEGENERATE
+
+W, H = 48, 32
+
+
+def assert_conservative(q, r, lx, ly, seed, tile_size=8, coarse_factor=2, edge_test=True, lens_bounds=True):
+    setup, alive, kept = setup_and_tiles(q, r, lx, ly, W, H, tile_size, coarse_factor, edge_test, lens_bounds)
+    rng = np.random.default_rng(seed)
+    pts = sample_inside_points(setup, 0, rng, 200, W, H)
+    if not pts:
+        return 0
+    if 0 not in alive and setup.last_status[0] == ST_DEGENERATE:
+        # dropped as degenerate: it must really have (almost) no area anywhere in (t, u, v)
+        assert relative_det_max(q, r, lx, ly) < 1e-8
+        return 0
+    assert 0 in alive, "setup culled a triangle that covers samples"
+    bx0, bx1, by0, by1 = setup.table.bounds[0]
+    ts, te = setup.table.t_span[0]
+    for x, y, t, u, v, z in pts:
+        assert bx0 <= x < bx1 and by0 <= y < by1, "screen bounds miss a covered sample"
+        assert ts <= t <= te, "temporal frustum span misses a covered sample"
+        tx, ty = int(x // tile_size), int(y // tile_size)
+        hit = np.nonzero((kept["tx"] == tx) & (kept["ty"] == ty))[0]
+        assert len(hit) == 1, f"tile ({tx},{ty}) of a covered sample was rejected"
+        i = hit[0]
+        assert kept["t_lo"][i] <= t <= kept["t_hi"][i], "t^ excludes a covered sample"
+        assert kept["u_lo"][i] <= u <= kept["u_hi"][i], "u^ excludes a covered sample"
+        assert kept["v_lo"][i] <= v <= kept["v_hi"][i], "v^ excludes a covered sample"
+        # float32 depth carries rounding (the sample tester clamps it into z^)
+        tol = 1e-4 * (1 + abs(z))
+        assert kept["z_lo"][i] - tol <= z <= kept["z_hi"][i] + tol, "z^ excludes a covered sample's depth"
+    return len(pts)
+
+
+@given(moving_triangle(), st.integers(0, 2**31))
+def test_tile_test_conservative_5d(tri, seed):
+    assert_conservative(*tri, seed)
+
+
+@given(moving_triangle(lens=False), st.integers(0, 2**31))
+def test_tile_test_conservative_motion_only_edge_test(tri, seed):
+    assert_conservative(*tri, seed, edge_test=True)
+
+
+@given(moving_triangle(motion=False), st.integers(0, 2**31))
+def test_tile_test_conservative_defocus_only(tri, seed):
+    assert_conservative(*tri, seed)
+
+
+@given(moving_triangle(allow_w_cross=False), st.integers(0, 2**31), st.sampled_from([1, 2, 4, 16]),
+       st.sampled_from([1, 3]))
+def test_tile_test_conservative_tile_sizes(tri, seed, tile_size, coarse):
+    assert_conservative(*tri, seed, tile_size=tile_size, coarse_factor=coarse)
+
+
+def test_crossing_w0_triangle_is_kept_and_covers():
+    # one vertex goes behind the camera during the shutter
+    q = np.array([[[-0.5, -0.5, 0.0, 1.0], [0.5, -0.5, 0.0, 1.0], [0.0, 0.5, 0.0, 1.0]]])
+    r = q.copy()
+    r[0, 2] = [0.0, 0.5, 0.0, -0.5]
+    n = assert_conservative(q, r, np.zeros((1, 3, 2)), np.zeros((1, 3, 2)), 1)
+    assert n > 50
+
+
+def test_tile_test_rejects_most_tiles_for_fast_motion():
+    # a small triangle sweeping across the screen: most tiles of the bounds see it only briefly
+    q = np.array([[[-0.9, -0.1, 0.0, 1.0], [-0.8, -0.1, 0.0, 1.0], [-0.85, 0.0, 0.0, 1.0]]])
+    r = q + np.array([1.7, 0.0, 0.0, 0.0])
+    setup, alive, kept = setup_and_tiles(q, r, np.zeros((1, 3, 2)), np.zeros((1, 3, 2)), W, H)
+    widths = kept["t_hi"] - kept["t_lo"]
+    assert len(kept) > 0
+    assert np.median(widths) < 0.35, "t^ should narrow each tile to a fraction of the shutter"
+
+
+def relative_det_max(q, r, lx, ly, n=9):
+    """Independent float64 check: max over a (t, u, v) grid of |D| / (|p0||p1||p2|)."""
+    best = 0.0
+    for t in np.linspace(0, 1, n):
+        for u in np.linspace(-1, 1, 5):
+            for v in np.linspace(-1, 1, 5):
+                p = (1 - t) * q[0] + t * r[0]
+                p = p[:, [0, 1, 3]].copy()
+                p[:, 0] += u * ((1 - t) * lx[0, :, 0] + t * lx[0, :, 1])
+                p[:, 1] += v * ((1 - t) * ly[0, :, 0] + t * ly[0, :, 1])
+                norms = np.prod(np.linalg.norm(p, axis=1))
+                if norms > 0:
+                    best = max(best, abs(np.linalg.det(p)) / norms)
+    return best

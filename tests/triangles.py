@@ -1,0 +1,110 @@
+"""Random and adversarial moving, defocused clip-space triangles for tests."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import strategies as st
+
+from pipeline_sim.config import load_arch
+from pipeline_sim.draw import draw_from_clip
+from units.sample_tester import inside_test
+from units.tile_test import TileTest
+from units.tile_traverser import TileTraverser
+from units.triangle_setup import ST_OK, TriangleSetup
+
+
+def finite(lo, hi):
+    return st.floats(lo, hi, allow_nan=False, allow_infinity=False)
+
+
+@st.composite
+def moving_triangle(draw, *, lens=True, motion=True, allow_w_cross=True, scale=1.0):
+    """A triangle as (q, r, lens_x, lens_y), each (1,3,...) float64 clip space."""
+    wlo = -1.0 if allow_w_cross else 0.2
+    q = np.zeros((1, 3, 4))
+    r = np.zeros((1, 3, 4))
+    for arr, on in ((q, True), (r, motion)):
+        for k in range(3):
+            w = draw(finite(wlo, 4.0))
+            x = draw(finite(-2.0, 2.0)) * max(abs(w), 0.1) * scale
+            y = draw(finite(-2.0, 2.0)) * max(abs(w), 0.1) * scale
+            z = draw(finite(-1.2, 1.2)) * max(abs(w), 0.1)
+            arr[0, k] = (x, y, z, w)
+    if not motion:
+        r = q.copy()
+    if draw(st.booleans()) and motion:  # adversarial: pure translation (near-linear edges)
+        d = np.array([draw(finite(-1, 1)), draw(finite(-1, 1)), 0.0, 0.0])
+        r = q + d
+    lx = np.zeros((1, 3, 2))
+    ly = np.zeros((1, 3, 2))
+    if lens:
+        focus = draw(finite(0.3, 4.0))
+        radius = draw(finite(0.0, 0.5))
+        for s, arr in enumerate((q, r)):
+            coc = radius * (arr[0, :, 3] / focus - 1.0)
+            lx[0, :, s] = coc * 1.7
+            ly[0, :, s] = coc * 1.7
+    return q, r, lx, ly
+
+
+def setup_and_tiles(q, r, lx, ly, width=48, height=32, tile_size=8, coarse_factor=2, edge_test=True,
+                    lens_bounds=True, backface_culling=False):
+    """Run triangle setup, the traverser and the tile test on one draw.
+
+    Returns (setup, survivors of setup, tile records kept by the tile test).
+    """
+    d = draw_from_clip(q, r, lx, ly, width=width, height=height)
+    arch = load_arch(overrides=[f"tile_traverser.coarse_factor={coarse_factor}",
+                                f"tile_test.edge_test={'true' if edge_test else 'false'}",
+                                f"tile_test.lens_bounds={'true' if lens_bounds else 'false'}",
+                                f"triangle_setup.backface_culling={'true' if backface_culling else 'false'}"])
+    setup = TriangleSetup(arch.triangle_setup, d, tile_size)
+    ids = np.arange(d.n, dtype=np.int64)
+    alive, _, _ = setup.run(ids)
+    trav = TileTraverser(arch.tile_traverser, setup.table, tile_size, width, height)
+    tiles, _, _ = trav.run(alive)
+    tt = TileTest(arch.tile_test, setup.table, tile_size, width, height)
+    kept, _, _ = tt.run(tiles)
+    return setup, alive, kept
+
+
+def sample_inside_points(setup, tri, rng, n, width, height):
+    """Random (x, y, t, u, v) samples that the pipeline's exact test accepts.
+
+    Picks (t, u, v), a random point of the triangle there (positive
+    barycentric combination in 2DH with w > 0), keeps those on screen that
+    ``inside_test`` accepts. Returns a list of (x, y, t, u, v, z).
+    """
+    tb = setup.table
+    out = []
+    for _ in range(n):
+        t = np.float32(rng.uniform(0, 1))
+        a = rng.uniform(0, 2 * np.pi)
+        rad = np.sqrt(rng.uniform(0, 1))
+        u = np.float32(rad * np.cos(a))
+        v = np.float32(rad * np.sin(a))
+        kind = rng.integers(3)
+        if kind == 0:  # anywhere inside
+            lam = rng.dirichlet([1, 1, 1])
+        elif kind == 1:  # near a vertex: the extremes of the triangle, where bounds are tight
+            lam = rng.dirichlet([0.02, 0.02, 0.02])
+        else:  # on an edge
+            lam = rng.dirichlet([1, 1, 1])
+            lam[rng.integers(3)] = 1e-7
+            lam /= lam.sum()
+        P = np.zeros(3)
+        for k in range(3):
+            X = tb.p0[tri, k, 0] + t * tb.dp[tri, k, 0] + u * (tb.l0[tri, k, 0] + t * tb.dl[tri, k, 0])
+            Y = tb.p0[tri, k, 1] + t * tb.dp[tri, k, 1] + v * (tb.l0[tri, k, 1] + t * tb.dl[tri, k, 1])
+            W = tb.p0[tri, k, 3] + t * tb.dp[tri, k, 3]
+            P += lam[k] * np.array([X, Y, W])
+        if P[2] <= 1e-9:
+            continue
+        x, y = np.float32(P[0] / P[2]), np.float32(P[1] / P[2])
+        if not (0 <= x < width and 0 <= y < height):
+            continue
+        ok, b0, b1, b2, z = inside_test(tb.p0_32, tb.dp_32, tb.l0_32, tb.dl_32, tri, np.float32(x),
+                                        np.float32(y), t, u, v, False)
+        if ok:
+            out.append((float(np.float32(x)), float(np.float32(y)), float(t), float(u), float(v), float(z)))
+    return out
