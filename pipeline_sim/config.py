@@ -173,9 +173,8 @@ class ArchConfig:
     def validate(self, where: str = "arch") -> "ArchConfig":
         for f in fields(self):
             getattr(self, f.name).validate(f"{where}: {f.name}")
-        if self.pipeline.mode == "conservative" and self.tile_traverser.tile_size != 1:
-            # Conservative mode rasterizes at pixel granularity (000 §2).
-            self.tile_traverser.tile_size = 1
+        # conservative mode rasterizes 1x1 tiles (000 §2); the renderer applies
+        # that without rewriting tile_size, so leaving the mode restores it
         return self
 
     def to_dict(self) -> dict[str, dict[str, Any]]:

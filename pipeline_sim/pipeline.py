@@ -38,14 +38,17 @@ class Channel:
     store: simpy.Store
     depth: int
     _last: float = 0.0
+    _level: int = 0
     integral: float = 0.0
     peak: int = 0
 
     def record(self, now: float) -> None:
-        level = len(self.store.items)
-        self.integral += level * (now - self._last) if now > self._last else 0.0
-        self._last = max(self._last, now)
-        self.peak = max(self.peak, level)
+        """Note the level after a put or get at ``now``; the previous level held until then."""
+        if now > self._last:
+            self.integral += self._level * (now - self._last)
+            self._last = now
+        self._level = len(self.store.items)
+        self.peak = max(self.peak, self._level)
 
 
 @dataclass
@@ -59,6 +62,7 @@ class Stage:
     starved: float = 0.0
     blocked: float = 0.0
     batches: int = 0
+    finished: float = 0.0
     trace: list[tuple[float, float, str]] = field(default_factory=list)
 
     def mark(self, start: float, end: float, state: str) -> None:
@@ -75,8 +79,12 @@ def _stage_process(env: simpy.Environment, stage: Stage, inp: Channel, out: Chan
             stage.starved += env.now - t0
             stage.mark(t0, env.now, "starved")
             if out is not None:
+                t1 = env.now
                 yield out.store.put(END)
                 out.record(env.now)
+                stage.blocked += env.now - t1
+                stage.mark(t1, env.now, "blocked")
+            stage.finished = env.now
             return
         ready, payload = item
         if ready > env.now:
@@ -131,6 +139,9 @@ def simulate(stages: list[Stage], source_batches: list[Any], queue_depth: int) -
     frame = float(env.now)
     for ch in channels:
         ch.record(frame)
+    for s in stages:  # after its last batch a unit waits for input that never comes
+        s.starved += frame - s.finished
+        s.mark(s.finished, frame, "starved")
     units = pd.DataFrame(
         [
             {

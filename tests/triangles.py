@@ -104,7 +104,7 @@ def sample_inside_points(setup, tri, rng, n, width, height):
         if not (0 <= x < width and 0 <= y < height):
             continue
         ok, b0, b1, b2, z = inside_test(tb.p0_32, tb.dp_32, tb.l0_32, tb.dl_32, tri, np.float32(x),
-                                        np.float32(y), t, u, v, False)
+                                        np.float32(y), t, u, v, False, tb.edge_eps)
         if ok:
             out.append((float(np.float32(x)), float(np.float32(y)), float(t), float(u), float(v), float(z)))
     return out

@@ -52,9 +52,25 @@ def _edge(xj, yj, wj, xi, yi, wi, x, y):
     return a, b, a * x + b * y + c
 
 
+@nb.njit(cache=True, inline="always")
+def _edge64(xj, yj, wj, xi, yi, wi, x, y):
+    """The same edge in float64 from the same float32 inputs: the products of
+    two float32 values are exact, so the sign is that of exact arithmetic
+    unless the sample lies within about 1e-16 (relative) of the edge."""
+    return _edge(np.float64(xj), np.float64(yj), np.float64(wj), np.float64(xi), np.float64(yi),
+                 np.float64(wi), np.float64(x), np.float64(y))
+
+
 @nb.njit(cache=True)
-def inside_test(p0, dp, l0, dl, tri, x, y, t, u, v, backface_culling):
-    """Exact 5D test of one sample (float32); returns (covered, b0, b1, b2, z_ndc)."""
+def inside_test(p0, dp, l0, dl, tri, x, y, t, u, v, backface_culling, edge_eps):
+    """Exact 5D test of one sample; returns (covered, b0, b1, b2, z_ndc).
+
+    Vertices at (t, u, v) are computed in float32 and taken as exact inputs.
+    Edge functions are evaluated in float32; a sample within the float32
+    error bound ``edge_eps[tri]`` of an edge is re-evaluated in float64, so
+    the decision matches exact arithmetic on the vertex values: shared edges
+    (exactly negated functions) and shared vertices are covered once.
+    """
     X0 = p0[tri, 0, 0] + t * dp[tri, 0, 0] + u * (l0[tri, 0, 0] + t * dl[tri, 0, 0])
     Y0 = p0[tri, 0, 1] + t * dp[tri, 0, 1] + v * (l0[tri, 0, 1] + t * dl[tri, 0, 1])
     W0 = p0[tri, 0, 3] + t * dp[tri, 0, 3]
@@ -68,8 +84,13 @@ def inside_test(p0, dp, l0, dl, tri, x, y, t, u, v, backface_culling):
     a0, b0, e0 = _edge(X2, Y2, W2, X1, Y1, W1, x, y)
     a1, b1, e1 = _edge(X0, Y0, W0, X2, Y2, W2, x, y)
     a2, b2, e2 = _edge(X1, Y1, W1, X0, Y0, W0, x, y)
+    eps = edge_eps[tri]
+    if abs(e0) <= eps or abs(e1) <= eps or abs(e2) <= eps:
+        a0, b0, e0 = _edge64(X2, Y2, W2, X1, Y1, W1, x, y)
+        a1, b1, e1 = _edge64(X0, Y0, W0, X2, Y2, W2, x, y)
+        a2, b2, e2 = _edge64(X1, Y1, W1, X0, Y0, W0, x, y)
     c0 = X2 * Y1 - Y2 * X1
-    D = X0 * a0 + Y0 * b0 + W0 * c0  # p0 . (p2 x p1)
+    D = X0 * (Y2 * W1 - W2 * Y1) + Y0 * (W2 * X1 - X2 * W1) + W0 * c0  # p0 . (p2 x p1)
     if D == 0.0 or (backface_culling and D < 0.0):
         return False, np.float32(0.0), np.float32(0.0), np.float32(0.0), np.float32(0.0)
     if D < 0.0:
@@ -88,17 +109,17 @@ def inside_test(p0, dp, l0, dl, tri, x, y, t, u, v, backface_culling):
     Z1 = p0[tri, 1, 2] + t * dp[tri, 1, 2]
     Z2 = p0[tri, 2, 2] + t * dp[tri, 2, 2]
     # z/w = sum(e_k Z_k) / D; with e oriented by the sign of D that is / |D|
-    z = (e0 * Z0 + e1 * Z1 + e2 * Z2) / abs(D)
+    z = np.float32((e0 * Z0 + e1 * Z1 + e2 * Z2) / abs(D))
     if not (z >= -1.0 and z <= 1.0):
         return False, np.float32(0.0), np.float32(0.0), np.float32(0.0), np.float32(0.0)
-    inv = np.float32(1.0) / tot
-    return True, e0 * inv, e1 * inv, e2 * inv, z
+    inv = 1.0 / tot
+    return True, np.float32(e0 * inv), np.float32(e1 * inv), np.float32(e2 * inv), z
 
 
 @nb.njit(cache=True)
 def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, noread_in,
                        tile_size, width, height, spp, sx, sy, su, sv, st,
-                       p0, dp, l0, dl, backface_culling,
+                       p0, dp, l0, dl, edge_eps, backface_culling,
                        out_tri, out_pix, out_sidx, out_z, out_b0, out_b1, out_b2, out_noread, ops, events):
     """Range lookup on t-ordered samples and exact 5D inside tests (002 §5; 004 eq. 3, 10-13)."""
     n = 0
@@ -144,7 +165,8 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
                         continue
                     events[EV_TESTED] += 1
                     ok, b0, b1, b2, z = inside_test(p0, dp, l0, dl, tri, np.float32(px + sx[k]),
-                                                     np.float32(py + sy[k]), st[k], u, v, backface_culling)
+                                                     np.float32(py + sy[k]), st[k], u, v, backface_culling,
+                                                     edge_eps)
                     if ok:
                         # the true depth lies in z^; clamping removes float32 rounding
                         # so z-cull decisions made on z^ agree with the ROP's
@@ -192,7 +214,7 @@ class SampleTester:
                                tiles["u_lo"], tiles["u_hi"], tiles["v_lo"], tiles["v_hi"], tiles["z_lo"],
                                tiles["z_hi"], tiles["noread"],
                                ts, s.width, s.height, s.spp, s.x, s.y, s.u, s.v, s.t,
-                               t.p0_32, t.dp_32, t.l0_32, t.dl_32, self.backface_culling,
+                               t.p0_32, t.dp_32, t.l0_32, t.dl_32, t.edge_eps, self.backface_culling,
                                out["tri"], out["pix"], out["sidx"], out["z"], out["b0"], out["b1"],
                                out["b2"], out["noread"], ops, events)
         tested = events[EV_TESTED]

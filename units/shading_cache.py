@@ -32,6 +32,7 @@ EVENTS = ("lookups", "hits", "misses", "evictions", "shader_executions")
 EV_LOOKUP, EV_HIT, EV_MISS, EV_EVICT, EV_EXEC = range(len(EVENTS))
 
 REPL_LRU, REPL_FIFO = 0, 1
+CELL_LIMIT = 1 << 20  # shading-grid cells are keyed in [-2^20, 2^20) per axis
 HASH_MUL = np.uint64(0x9E3779B97F4A7C15)
 
 
@@ -59,20 +60,33 @@ def cache_kernel(tri, b0, b1, b2, ref, rate, grid_w, grid_h, tags, stamps, entry
         centre_ok = False
         if W > 1e-20:
             inv = 1.0 / W
-            cx = int(np.floor(X * inv / rate))
-            cy = int(np.floor(Y * inv / rate))
-            cx = max(-1, min(grid_w, cx))
-            cy = max(-1, min(grid_h, cy))
-            centre_ok = True
+            fx = X * inv / rate
+            fy = Y * inv / rate
+            if abs(fx) < CELL_LIMIT and abs(fy) < CELL_LIMIT:
+                cx = int(np.floor(fx))
+                cy = int(np.floor(fy))
+                centre_ok = True
             ops[OP_RCP] += 1
             ops[OP_MUL] += 4
-        key = np.int64(tr) * np.int64(1 << 32) + np.int64((cy + 1) * (grid_w + 2) + (cx + 1))
-        if not centre_ok:
-            key = -np.int64(i) - 2  # unique: never hits
-        h = (np.uint64(key) * HASH_MUL) >> np.uint64(33)
-        st = int(h % np.uint64(nsets))
         events[EV_LOOKUP] += 1
         clock += 1
+        if not centre_ok:
+            # the surface point is behind the reference camera (or absurdly far
+            # off screen): it has no shading-grid cell, so it is shaded on its
+            # own, uncached, at its own barycentrics
+            events[EV_MISS] += 1
+            req_entry[nreq] = -1
+            req_tri[nreq] = tr
+            req_l[0, nreq] = b0[i]
+            req_l[1, nreq] = b1[i]
+            req_l[2, nreq] = b2[i]
+            sample_req[i] = nreq
+            nreq += 1
+            continue
+        key = ((np.int64(tr) << np.int64(42)) + (np.int64(cy + CELL_LIMIT) << np.int64(21))
+               + np.int64(cx + CELL_LIMIT))
+        h = (np.uint64(key) * HASH_MUL) >> np.uint64(33)
+        st = int(h % np.uint64(nsets))
         hit_way = -1
         for w in range(ways):
             if tags[st, w] == key:
@@ -112,33 +126,28 @@ def cache_kernel(tri, b0, b1, b2, ref, rate, grid_w, grid_h, tags, stamps, entry
         req_entry[nreq] = e
         req_tri[nreq] = tr
         # barycentrics of the cell centre on the reference triangle
-        if centre_ok:
-            sx = (cx + 0.5) * rate
-            sy = (cy + 0.5) * rate
-            l = np.empty(3)
+        sx = (cx + 0.5) * rate
+        sy = (cy + 0.5) * rate
+        l = np.empty(3)
+        for k in range(3):
+            ii = (k + 1) % 3
+            jj = (k + 2) % 3
+            a = ref[tr, jj, 1] * ref[tr, ii, 2] - ref[tr, jj, 2] * ref[tr, ii, 1]
+            b = ref[tr, jj, 2] * ref[tr, ii, 0] - ref[tr, jj, 0] * ref[tr, ii, 2]
+            c = ref[tr, jj, 0] * ref[tr, ii, 1] - ref[tr, jj, 1] * ref[tr, ii, 0]
+            l[k] = a * sx + b * sy + c
+        tot = l[0] + l[1] + l[2]
+        ops[OP_MUL] += 9
+        ops[OP_MADD] += 12
+        ops[OP_RCP] += 1
+        if tot != 0.0 and np.isfinite(tot):
+            # clamp to the triangle so attributes stay in range
             for k in range(3):
-                ii = (k + 1) % 3
-                jj = (k + 2) % 3
-                a = ref[tr, jj, 1] * ref[tr, ii, 2] - ref[tr, jj, 2] * ref[tr, ii, 1]
-                b = ref[tr, jj, 2] * ref[tr, ii, 0] - ref[tr, jj, 0] * ref[tr, ii, 2]
-                c = ref[tr, jj, 0] * ref[tr, ii, 1] - ref[tr, jj, 1] * ref[tr, ii, 0]
-                l[k] = a * sx + b * sy + c
-            tot = l[0] + l[1] + l[2]
-            ops[OP_MUL] += 9
-            ops[OP_MADD] += 12
-            ops[OP_RCP] += 1
-            if tot != 0.0 and np.isfinite(tot):
-                # clamp to the triangle so attributes stay in range
+                l[k] = max(0.0, l[k] / tot)
+            s = l[0] + l[1] + l[2]
+            if s > 0:
                 for k in range(3):
-                    l[k] = max(0.0, l[k] / tot)
-                s = l[0] + l[1] + l[2]
-                if s > 0:
-                    for k in range(3):
-                        req_l[k, nreq] = l[k] / s
-                else:
-                    req_l[0, nreq] = b0[i]
-                    req_l[1, nreq] = b1[i]
-                    req_l[2, nreq] = b2[i]
+                    req_l[k, nreq] = l[k] / s
             else:
                 req_l[0, nreq] = b0[i]
                 req_l[1, nreq] = b1[i]
@@ -263,8 +272,9 @@ class Shading:
             color[has] = shaded[sample_req[has]]
             # an entry refilled within the batch keeps its last request's color
             entries, last = np.unique(req_entry[:nreq][::-1], return_index=True)
-            self.entry_color[entries] = shaded[nreq - 1 - last]
-            self.entry_req[entries] = -1
+            cached = entries >= 0  # -1: shaded uncached (no grid cell)
+            self.entry_color[entries[cached]] = shaded[nreq - 1 - last[cached]]
+            self.entry_req[entries[cached]] = -1
         else:
             req_l = np.stack([batch["b0"], batch["b1"], batch["b2"]]).astype(np.float64)
             inputs = np.zeros((N_INPUTS, n), np.float32)

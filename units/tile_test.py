@@ -273,4 +273,5 @@ class TileTest:
                          iv["z_lo"], iv["z_hi"], ops, events)
         out = {name: arr[keep] for name, arr in tiles.items()}
         out.update({name: arr[keep] for name, arr in iv.items()})
+        out["noread"] = np.zeros(len(out["tri"]), np.bool_)  # set by z-cull when it runs
         return out, ops, events

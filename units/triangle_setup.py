@@ -72,6 +72,7 @@ class TriangleTable:
     edge_h: np.ndarray  # (N,3,3) h of each edge, facing-normalized
     edge_gamma: np.ndarray  # (N,3) upper slope bound Gamma per edge
     ref: np.ndarray  # (N,3,3) float32 reference-camera (t=0.5, lens centre) X, Y, W
+    edge_eps: np.ndarray  # (N,) float32 error bound of a float32 edge-function value
 
     @classmethod
     def allocate(cls, n: int) -> "TriangleTable":
@@ -84,7 +85,7 @@ class TriangleTable:
             t_span=np.zeros((n, 2), f64), bounds=np.zeros((n, 4), np.int32),
             facing=np.zeros(n, np.int8), flags=np.zeros(n, np.int8),
             edge_h=np.zeros((n, 3, 3), f64), edge_gamma=np.zeros((n, 3), f64),
-            ref=np.zeros((n, 3, 3), f32),
+            ref=np.zeros((n, 3, 3), f32), edge_eps=np.zeros(n, f32),
         )
 
 
@@ -117,7 +118,7 @@ def _det(x0, y0, w0, x1, y1, w1, x2, y2, w2):
 @nb.njit(cache=True)
 def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_culling,
                  p0, dp, l0, dl, p0_32, dp_32, l0_32, dl_32, t_span, bounds, facing, flags,
-                 edge_h, edge_gamma, ref, status, ops, events):
+                 edge_h, edge_gamma, ref, edge_eps, status, ops, events):
     """Triangle setup for the triangles ``ids`` (PIPELINE §2.1; 002 §3-4, 004 eq. 3-5).
 
     Writes the per-triangle tables in place, ``status`` per batch item and
@@ -170,6 +171,16 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
             for c in range(3):
                 cc = c if c < 2 else 3
                 ref[tri, k, c] = np.float32(0.5 * (px[0, k, cc] + px[1, k, cc]))
+
+        # ---- float32 edge-function error bound for the sample tester --------
+        # |e32 - e| <= 9 * 2^-24 * m^2 * (|x| + |y| + 1) with m the largest
+        # |X|, |Y|, |W| of any vertex at any (t, u, v) (extremes at the corners)
+        m = 0.0
+        for s in range(2):
+            for k in range(3):
+                m = max(m, abs(px[s, k, 0]) + abs(lx[s, k, 0]), abs(px[s, k, 1]) + abs(lx[s, k, 1]),
+                        abs(px[s, k, 3]))
+        edge_eps[tri] = np.float32(2e-6 * m * m * (width + height + 1.0))
 
         # ---- temporal frustum culling (002 §3), lens-conservative ----------
         ts = 0.0
@@ -398,6 +409,6 @@ class TriangleSetup:
         setup_kernel(ids, d.q, d.r, d.lens_x, d.lens_y, d.width, d.height, self.tile_size,
                      self.config.backface_culling, t.p0, t.dp, t.l0, t.dl, t.p0_32, t.dp_32,
                      t.l0_32, t.dl_32, t.t_span, t.bounds, t.facing, t.flags, t.edge_h,
-                     t.edge_gamma, t.ref, status, ops, events)
+                     t.edge_gamma, t.ref, t.edge_eps, status, ops, events)
         self.last_status = status
         return ids[status == ST_OK], ops, events

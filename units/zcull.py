@@ -152,7 +152,7 @@ class ZCull:
                          self.tiles_x, self.nt, self.nl, self.zmax, self.zmin, self.func, keep, noread,
                          ops, events)
         out = {name: arr[keep] for name, arr in tiles.items()}
-        out["noread"] = noread[keep]
+        out["noread"] = noread[keep]  # depth reads this tile's samples can skip
         return out, ops, events
 
     def refresh(self, pix: np.ndarray, samples, depth: np.ndarray, events: np.ndarray) -> None:

@@ -1,0 +1,258 @@
+"""Architecture configuration (pipeline_sim/config.py): defaults, --set, --arch, errors.
+
+Expected values come from the shipped TOML read here with tomllib, from
+literal TOML/Python values, and from hand-written expectations of the error
+messages (section and key named, one line).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+
+import pytest
+
+from pipeline_sim.config import (BLEND_MODES, DEFAULT_ARCH_PATH, DEPTH_FUNCS, SECTION_NAMES, ArchConfig,
+                                 apply_overrides, arch_from_dict, load_arch, parse_override)
+from pipeline_sim.errors import UserError
+
+
+def shipped():
+    with open(DEFAULT_ARCH_PATH, "rb") as fh:
+        return tomllib.load(fh)
+
+
+def test_defaults_load_and_match_shipped_file():
+    arch = load_arch()
+    assert isinstance(arch, ArchConfig)
+    data = shipped()
+    d = arch.to_dict()
+    assert set(data) == set(SECTION_NAMES) == set(d)
+    for section, values in data.items():
+        assert set(values) == set(d[section]), section  # the file documents every key
+        for key, value in values.items():
+            got = d[section][key]
+            assert got == value and type(got) is type(value), f"{section}.{key}: {got!r} != {value!r}"
+
+
+def test_dataclass_defaults_equal_shipped_defaults():
+    """The code defaults (used when a key is absent) are the documented ones."""
+    assert ArchConfig().to_dict() == shipped()
+
+
+def test_every_default_round_trips_through_dict():
+    arch = load_arch()
+    again = arch_from_dict(arch.to_dict())
+    assert again == arch
+    # and each value individually, set through --set to its own value
+    for section, values in arch.to_dict().items():
+        for key, value in values.items():
+            lit = ("true" if value else "false") if isinstance(value, bool) else (
+                f'"{value}"' if isinstance(value, str) else repr(value))
+            assert apply_overrides(arch, [f"{section}.{key}={lit}"]) == arch, (section, key)
+
+
+@pytest.mark.parametrize("text,expect", [
+    ("tile_traverser.tile_size=16", ("tile_traverser", "tile_size", 16)),
+    ("shading.shading_rate=0.5", ("shading", "shading_rate", 0.5)),
+    ("shading.shading_rate=2", ("shading", "shading_rate", 2)),
+    ("zcull.enabled=false", ("zcull", "enabled", False)),
+    ("zcull.enabled=true", ("zcull", "enabled", True)),
+    ("rop.depth_test=lequal", ("rop", "depth_test", "lequal")),
+    ('rop.depth_test="gequal"', ("rop", "depth_test", "gequal")),
+    (" rop.blend = max ", ("rop", "blend", "max")),
+    ("pipeline.clock_ghz=1e-1", ("pipeline", "clock_ghz", 0.1)),
+    ("shading.cache_entries=-3", ("shading", "cache_entries", -3)),
+])
+def test_parse_override_values(text, expect):
+    got = parse_override(text)
+    assert got == expect
+    assert type(got[2]) is type(expect[2])
+
+
+def test_overrides_apply_with_types():
+    arch = load_arch(overrides=["tile_traverser.tile_size=16", "shading.shading_rate=2",
+                                "zcull.enabled=false", "rop.depth_test=greater", "rop.blend=add",
+                                "shading.replacement=fifo", "pipeline.queue_depth=1",
+                                "tile_test.throughput=3"])
+    assert arch.tile_traverser.tile_size == 16
+    assert arch.shading.shading_rate == 2.0 and isinstance(arch.shading.shading_rate, float)
+    assert arch.tile_test.throughput == 3.0 and isinstance(arch.tile_test.throughput, float)
+    assert arch.zcull.enabled is False
+    assert (arch.rop.depth_test, arch.rop.blend, arch.shading.replacement) == ("greater", "add", "fifo")
+    assert arch.pipeline.queue_depth == 1
+    # untouched keys keep the shipped defaults
+    data = shipped()
+    assert arch.shading.cache_entries == data["shading"]["cache_entries"]
+    assert arch.rop.latency == data["rop"]["latency"]
+    # the last of two overrides of one key wins
+    assert load_arch(overrides=["rop.blend=add", "rop.blend=min"]).rop.blend == "min"
+
+
+def test_load_arch_does_not_mutate_base():
+    base = load_arch()
+    before = base.to_dict()
+    apply_overrides(base, ["rop.blend=add", "tile_traverser.tile_size=32"])
+    arch_from_dict({"zcull": {"enabled": False}}, base=base)
+    assert base.to_dict() == before
+
+
+def _expect_error(overrides, *fragments):
+    with pytest.raises(UserError) as info:
+        load_arch(overrides=overrides)
+    msg = str(info.value)
+    assert "\n" not in msg, msg
+    for f in fragments:
+        assert f in msg, f"{f!r} not in {msg!r}"
+    return msg
+
+
+def test_unknown_section():
+    msg = _expect_error(["zcul.enabled=true"], "zcul", "did you mean 'zcull'")
+    assert "--set" in msg
+
+
+def test_unknown_key_with_suggestion():
+    _expect_error(["zcull.enable=true"], "zcull", "'enable'", "did you mean 'enabled'")
+    _expect_error(["shading.cache_entrys=8"], "shading", "cache_entrys", "did you mean 'cache_entries'")
+
+
+def test_unknown_key_without_close_match_lists_known_keys():
+    msg = _expect_error(["rop.qqqqq=1"], "rop", "qqqqq", "known keys")
+    assert "did you mean" not in msg
+    assert "depth_test" in msg
+
+
+@pytest.mark.parametrize("text,section,key", [
+    ("zcull.enabled=1", "zcull", "enabled"),
+    ("zcull.enabled=yes", "zcull", "enabled"),
+    ("tile_traverser.tile_size=8.0", "tile_traverser", "tile_size"),
+    ("tile_traverser.tile_size=true", "tile_traverser", "tile_size"),
+    ("shading.shading_rate=fast", "shading", "shading_rate"),
+    ("shading.shading_rate=true", "shading", "shading_rate"),
+    ("rop.depth_test=1", "rop", "depth_test"),
+    ("rop.depth_test=false", "rop", "depth_test"),
+    ("pipeline.queue_depth=[1, 2]", "pipeline", "queue_depth"),
+])
+def test_wrong_type(text, section, key):
+    _expect_error([text], f"{section}.{key}")
+
+
+@pytest.mark.parametrize("size", [0, 3, 6, 12, 100, 256, -8])
+def test_tile_size_must_be_power_of_two(size):
+    _expect_error([f"tile_traverser.tile_size={size}"], "tile_traverser", "tile_size")
+
+
+@pytest.mark.parametrize("size", [1, 2, 4, 8, 16, 32, 64, 128])
+def test_tile_size_powers_of_two_accepted(size):
+    assert load_arch(overrides=[f"tile_traverser.tile_size={size}"]).tile_traverser.tile_size == size
+
+
+def test_cache_entries_multiple_of_ways():
+    _expect_error(["shading.cache_entries=100"], "shading", "cache_entries", "cache_ways")
+    _expect_error(["shading.cache_ways=3"], "shading", "cache_entries", "cache_ways")
+    ok = load_arch(overrides=["shading.cache_entries=96", "shading.cache_ways=3"])
+    assert (ok.shading.cache_entries, ok.shading.cache_ways) == (96, 3)
+
+
+@pytest.mark.parametrize("text,section,key", [
+    ("rop.depth_test=lesser", "rop", "depth_test"),
+    ("rop.blend=multiply", "rop", "blend"),
+    ("shading.mode=cached", "shading", "mode"),
+    ("shading.replacement=random", "shading", "replacement"),
+    ("pipeline.mode=fast", "pipeline", "mode"),
+])
+def test_bad_enum(text, section, key):
+    msg = _expect_error([text], f"{section}.{key}")
+    assert "is not one of" in msg
+
+
+def test_bad_enum_suggests_and_lists_choices():
+    msg = _expect_error(["rop.depth_test=lesser"], "did you mean 'less'")
+    for f in DEPTH_FUNCS:
+        assert f in msg
+    msg = _expect_error(["rop.blend=ad"], "rop.blend")
+    for b in BLEND_MODES:
+        assert b in msg
+
+
+@pytest.mark.parametrize("text,section,key", [
+    ("rop.throughput=0", "rop", "throughput"),
+    ("rop.throughput=-1.5", "rop", "throughput"),
+    ("rop.bandwidth=nan", "rop", "bandwidth"),
+    ("shading.shading_rate=inf", "shading", "shading_rate"),
+    ("zcull.latency=-1", "zcull", "latency"),
+    ("tile_test.instances=0", "tile_test", "instances"),
+    ("pipeline.queue_depth=0", "pipeline", "queue_depth"),
+    ("pipeline.triangles_per_batch=0", "pipeline", "triangles_per_batch"),
+    ("zcull.time_slices=0", "zcull", "time_slices"),
+])
+def test_range_errors(text, section, key):
+    _expect_error([text], f"{section}.{key}")
+
+
+def test_zcull_box_budget():
+    _expect_error(["zcull.time_slices=64", "zcull.lens_boxes=2"], "zcull", "time_slices", "lens_boxes")
+    arch = load_arch(overrides=["zcull.time_slices=63", "zcull.lens_boxes=2"])  # 252 boxes
+    assert arch.zcull.time_slices * arch.zcull.lens_boxes ** 2 == 252
+
+
+@pytest.mark.parametrize("text", ["noequals", "a=1", "a.b.c=1", ".b=1", "a.=1"])
+def test_malformed_set(text):
+    with pytest.raises(UserError) as info:
+        parse_override(text)
+    assert "\n" not in str(info.value) and "section.key=value" in str(info.value)
+
+
+def test_arch_file_applied_over_defaults(tmp_path):
+    f = tmp_path / "my_arch.toml"
+    f.write_text("[rop]\nblend = \"max\"\nthroughput = 4\n\n[shading]\ncache_entries = 64\n"
+                 "cache_ways = 4\n[zcull]\nenabled = false\n")
+    arch = load_arch(f)
+    assert arch.rop.blend == "max" and arch.rop.throughput == 4.0
+    assert (arch.shading.cache_entries, arch.shading.cache_ways) == (64, 4)
+    assert arch.zcull.enabled is False
+    expect = shipped()
+    expect["rop"].update(blend="max", throughput=4.0)
+    expect["shading"].update(cache_entries=64, cache_ways=4)
+    expect["zcull"]["enabled"] = False
+    assert arch.to_dict() == expect
+    # --set applies on top of the file
+    arch2 = load_arch(f, overrides=["rop.blend=min", "shading.cache_entries=128"])
+    assert arch2.rop.blend == "min" and arch2.rop.throughput == 4.0
+    assert (arch2.shading.cache_entries, arch2.shading.cache_ways) == (128, 4)
+
+
+def test_arch_file_errors_name_the_file(tmp_path):
+    bad = tmp_path / "bad_arch.toml"
+    bad.write_text("[rop]\ndepth_tst = \"less\"\n")
+    with pytest.raises(UserError) as info:
+        load_arch(bad)
+    msg = str(info.value)
+    assert "bad_arch.toml" in msg and "rop" in msg and "depth_tst" in msg and "depth_test" in msg
+    assert "\n" not in msg
+    notable = tmp_path / "nt.toml"
+    notable.write_text("rop = 3\n")
+    with pytest.raises(UserError, match="rop"):
+        load_arch(notable)
+    broken = tmp_path / "broken.toml"
+    broken.write_text("[rop\n")
+    with pytest.raises(UserError, match="broken.toml"):
+        load_arch(broken)
+    with pytest.raises(UserError, match="not found"):
+        load_arch(tmp_path / "missing.toml")
+
+
+def test_replace_keeps_sections():
+    arch = load_arch()
+    new = arch.replace(rop=dataclasses.replace(arch.rop, blend="add"))
+    assert new.rop.blend == "add" and arch.rop.blend == "replace"
+    assert new.shading == arch.shading
+
+
+def test_leaving_conservative_mode_restores_tile_size(tmp_path):
+    f = tmp_path / "cons.toml"
+    f.write_text('[pipeline]\nmode = "conservative"\n')
+    arch = load_arch(f, overrides=["pipeline.mode=standard"])
+    assert arch.pipeline.mode == "standard"
+    assert arch.tile_traverser.tile_size == shipped()["tile_traverser"]["tile_size"]

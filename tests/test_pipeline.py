@@ -1,0 +1,383 @@
+"""The SimPy layer (pipeline_sim/pipeline.py) and timing-independence of the pipeline.
+
+Timing semantics of ``simulate`` as read from the code, written here as a
+recurrence (no SimPy) that the tests compare against. For stage j, batch k
+(one output per input), depth D of every channel, latency L_j, cost c_j(k):
+
+* G_j(k)  time stage j takes batch k from its input channel
+          = max(P_{j-1}(k), P_j(k-1))       (P_{-1} = the source's put)
+* S_j(k)  start = max(G_j(k), R_j(k)), R_j(k) = F_{j-1}(k) + L_{j-1}
+          (the ready stamp is taken when the upstream *issues* its put)
+* F_j(k)  = S_j(k) + c_j(k)
+* P_j(k)  put completes = max(F_j(k), G_{j+1}(k - D)): room once batch k-D
+          has been taken downstream; the last stage has no output, P = F.
+* the end marker is batch n with no cost and no ready time.
+Frame = G_last(n). Accounting: busy = sum c, blocked = sum (P - F) plus
+the wait to put the end marker, P_j(n) - G_j(n); starved = sum (S_j(k) -
+P_j(k-1)) + (G_j(n) - P_j(n-1)) plus the idle tail after the stage is done,
+frame - P_j(n); so busy + starved + blocked = frame for every stage.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline_sim.config import load_arch
+from pipeline_sim.draw import draw_from_clip
+from pipeline_sim.pipeline import Stage, chunks, cycles_for, simulate
+from pipeline_sim.render import UNIT_ORDER, RenderPass, run_pass
+
+NEG = float("-inf")
+
+
+def model(costs, lats, depth):
+    """Recurrence above. costs[j][k], lats[j]. Returns dict of per-stage arrays."""
+    m = len(costs)
+    n = len(costs[0])
+    G = np.zeros((m, n + 1))
+    S = np.zeros((m, n))
+    F = np.zeros((m, n))
+    P = np.zeros((m, n + 1))
+    src = np.zeros(n + 1)  # completion of the source's puts (item n: the end marker)
+    for k in range(n + 1):
+        src[k] = max(src[k - 1] if k else 0.0, G[0][k - depth] if k - depth >= 0 else NEG)
+        for j in range(m):
+            arrive = src[k] if j == 0 else P[j - 1][k]
+            prev = P[j][k - 1] if k else 0.0
+            G[j][k] = max(arrive, prev)
+            last = j == m - 1
+            if k == n:  # end marker: forward it
+                P[j][k] = G[j][k] if last else max(G[j][k], G[j + 1][k - depth] if k - depth >= 0 else NEG)
+                continue
+            ready = 0.0 if j == 0 else F[j - 1][k] + lats[j - 1]
+            S[j][k] = max(G[j][k], ready)
+            F[j][k] = S[j][k] + costs[j][k]
+            P[j][k] = F[j][k] if last else max(F[j][k], G[j + 1][k - depth] if k - depth >= 0 else NEG)
+    busy = np.array([sum(c) for c in costs], float)
+    frame = float(G[m - 1][n])
+    blocked = (P[:, :n] - F).sum(axis=1) + (P[:, n] - G[:, n])
+    prevP = np.concatenate([np.zeros((m, 1)), P[:, :n]], axis=1)  # P_j(k-1), k = 0..n
+    starved = (S - prevP[:, :n]).sum(axis=1) + (G[:, n] - P[:, n - 1]) + (frame - P[:, n])
+    # true time-weighted occupancy of each channel (input, then between stages)
+    enter = [src] + [P[j] for j in range(m - 1)]
+    occ = [float((G[j] - enter[j]).sum()) for j in range(m)]
+    return dict(frame=frame, G=G, F=F, busy=busy, blocked=blocked, starved=starved, occ=occ)
+
+
+def make_stages(costs, lats, log=None):
+    stages = []
+    for j, (cs, lat) in enumerate(zip(costs, lats)):
+        def step(payload, j=j, cs=cs):
+            if log is not None:
+                log.append((j, payload))
+            return [payload], cs[payload]
+        stages.append(Stage(f"s{j}", step, lat))
+    return stages
+
+
+def run(costs, lats, depth, log=None):
+    n = len(costs[0])
+    return simulate(make_stages(costs, lats, log), list(range(n)), depth)
+
+
+def unit_rows(res):
+    return res.units.set_index("unit")
+
+
+# --------------------------------------------------------------------------- #
+# closed forms
+# --------------------------------------------------------------------------- #
+@pytest.mark.parametrize("n,c,lat,depth", [(1, 5, 0, 1), (7, 3, 10, 1), (10, 4, 25, 4), (3, 0, 5, 2)])
+def test_single_stage_constant_cost(n, c, lat, depth):
+    """One stage, constant cost: frame = n * c; the last stage's latency is never paid."""
+    res = run([[c] * n], [lat], depth)
+    assert res.frame_cycles == n * c
+    row = unit_rows(res).loc["s0"]
+    assert row.busy == n * c and row.starved == 0 and row.blocked == 0 and row.batches == n
+
+
+@pytest.mark.parametrize("a,b,lat", [(2, 5, 7), (5, 2, 7), (3, 3, 0), (1, 10, 30)])
+def test_two_stages_unbounded_queue_closed_form(a, b, lat):
+    """Enough queue for no blocking: frame = max_k ((k+1) a + L + (n-k) b)
+    = a + L + n b if b >= a, else n a + L + b."""
+    n = 12
+    res = run([[a] * n, [b] * n], [lat, 0], depth=n + 1)
+    expect = a + lat + n * b if b >= a else n * a + lat + b
+    assert res.frame_cycles == expect
+    rows = unit_rows(res)
+    assert rows.loc["s1"].starved == expect - n * b
+    assert rows.loc["s0"].blocked == 0
+
+
+@pytest.mark.parametrize("depth", [1, 2, 3])
+def test_slow_downstream_blocks_upstream_and_fills_queue(depth):
+    n, a, b, lat = 20, 1, 10, 2
+    res = run([[a] * n, [b] * n], [lat, 0], depth)
+    rows = unit_rows(res)
+    q = res.queues.set_index("channel")
+    assert q.loc["s0->s1"].peak_occupancy == depth
+    assert rows.loc["s0"].blocked > 0
+    # closed form: the slow stage never waits after its first batch (a + L <= b)
+    assert res.frame_cycles == a + lat + n * b
+    # upstream: batches 0..D go straight in; batch D+1 waits until the slow
+    # stage takes batch 1 at a + L + b = 13 (finished at D+2); every later batch
+    # finishes 1 cycle after the previous put and waits for the next take, 10
+    # cycles later: blocked = (13 - (D + 2)) + 9 (n - D - 2); the end marker then
+    # waits one more slow batch, b, for room
+    assert rows.loc["s0"].blocked == (13 - (depth + 2)) + 9 * (n - depth - 2) + b
+    assert rows.loc["s0"].blocked == model([[a] * n, [b] * n], [lat, 0], depth)["blocked"][0]
+    assert rows.loc["s1"].starved == a + lat
+
+
+def test_model_matches_simulation_random():
+    """Random stages, costs, latencies and depths against the recurrence."""
+    rng = np.random.default_rng(0)
+    for trial in range(150):
+        m = int(rng.integers(1, 5))
+        n = int(rng.integers(1, 12))
+        depth = int(rng.integers(1, 5))
+        costs = [[int(c) for c in rng.integers(0, 10, n)] for _ in range(m)]
+        lats = [int(x) for x in rng.integers(0, 15, m)]
+        res = run(costs, lats, depth)
+        ref = model(costs, lats, depth)
+        ctx = (costs, lats, depth)
+        assert res.frame_cycles == ref["frame"], ctx
+        rows = res.units
+        np.testing.assert_array_equal(rows.busy.to_numpy(), ref["busy"], err_msg=str(ctx))
+        np.testing.assert_array_equal(rows.blocked.to_numpy(), ref["blocked"], err_msg=str(ctx))
+        np.testing.assert_array_equal(rows.starved.to_numpy(), ref["starved"], err_msg=str(ctx))
+        assert (res.queues.peak_occupancy <= depth).all()
+        np.testing.assert_allclose(rows.utilization, ref["busy"] / ref["frame"] if ref["frame"] else 0.0)
+
+
+def test_accounting_covers_the_frame():
+    """busy + starved + blocked = frame cycles for every stage."""
+    rng = np.random.default_rng(1)
+    for trial in range(60):
+        m = int(rng.integers(2, 5))
+        n = int(rng.integers(1, 10))
+        depth = int(rng.integers(1, 4))
+        costs = [[int(c) for c in rng.integers(0, 10, n)] for _ in range(m)]
+        lats = [int(x) for x in rng.integers(0, 8, m)]
+        res = run(costs, lats, depth)
+        ref = model(costs, lats, depth)
+        total = (res.units.busy + res.units.starved + res.units.blocked).to_numpy()
+        np.testing.assert_array_equal(total, np.full(m, ref["frame"]))
+        # the trace of each stage tiles [0, frame] without gaps or overlaps
+        for j, s in enumerate(res.units.unit):
+            tr = sorted(res.traces[s])
+            end = 0.0
+            for a, b, _ in tr:
+                assert a == end
+                end = b
+            assert end == ref["frame"]
+
+
+def test_accounting_covers_frame_for_every_stage():
+    res = run([[1] * 5, [10] * 5], [0, 0], 1)
+    total = res.units.busy + res.units.starved + res.units.blocked
+    assert (total == res.frame_cycles).all(), total.tolist()
+
+
+def test_mean_occupancy_is_time_weighted_level():
+    # one stage, two batches of cost 10, deep queue: the source fills the input
+    # channel with b0, b1, END at t=0; the stage takes b0 at 0, b1 at 10, END at
+    # 20. Level: 2 on [0, 10), 1 on [10, 20): mean 1.5.
+    res = run([[10, 10]], [0], 4)
+    assert res.frame_cycles == 20
+    assert res.queues.set_index("channel").loc["input"].mean_occupancy == pytest.approx(1.5)
+
+
+def test_mean_occupancy_random_against_model():
+    rng = np.random.default_rng(2)
+    for trial in range(40):
+        m = int(rng.integers(1, 4))
+        n = int(rng.integers(1, 10))
+        depth = int(rng.integers(1, 5))
+        costs = [[int(c) for c in rng.integers(1, 10, n)] for _ in range(m)]
+        lats = [int(x) for x in rng.integers(0, 8, m)]
+        res = run(costs, lats, depth)
+        ref = model(costs, lats, depth)
+        np.testing.assert_allclose(res.queues.mean_occupancy.to_numpy(),
+                                   np.array(ref["occ"]) / ref["frame"], err_msg=str((costs, lats, depth)))
+
+
+# --------------------------------------------------------------------------- #
+# random-stall harness: completeness and order
+# --------------------------------------------------------------------------- #
+@pytest.mark.parametrize("depth", [1, 2, 3, 4])
+def test_random_stalls_outputs_complete_and_in_order(depth):
+    """pymtl3-style: random per-batch costs from a seeded RNG in a source-side
+    stage, a splitting/dropping middle stage and a random-cost sink."""
+    rng = np.random.default_rng(depth)
+    for trial in range(20):
+        n = int(rng.integers(0, 25))
+        items = [(trial, i) for i in range(n)]
+        fanout = {it: int(rng.integers(0, 4)) for it in items}
+        cost_a = {it: float(rng.integers(0, 6)) for it in items}
+        cost_c = {}
+        received = []
+
+        def a(it):
+            return [it], cost_a[it]
+
+        def b(it):
+            outs = [(it, part) for part in range(fanout[it])]
+            for o in outs:
+                cost_c[o] = float(rng.integers(0, 8))
+            return outs, float(rng.integers(0, 3))
+
+        def c(o):
+            received.append(o)
+            return [], cost_c[o]
+
+        lats = rng.integers(0, 10, 3)
+        stages = [Stage("a", a, int(lats[0])), Stage("b", b, int(lats[1])), Stage("c", c, int(lats[2]))]
+        res = simulate(stages, items, depth)
+        assert received == [(it, p) for it in items for p in range(fanout[it])]
+        assert res.units.batches.tolist() == [n, n, len(received)]
+        assert (res.queues.peak_occupancy <= depth).all()
+        assert res.frame_cycles >= max(sum(cost_a.values()), sum(cost_c.values()))
+
+
+def test_cycles_for_and_chunks():
+    assert cycles_for(0, 2.0, 1) == 0
+    assert cycles_for(1, 16.0, 2) == 1
+    assert cycles_for(33, 16.0, 2) == 2
+    assert cycles_for(100, 0.5, 1) == 200
+    batch = {"a": np.arange(10), "b": np.arange(10) * 2}
+    parts = chunks(batch, 4)
+    assert [len(p["a"]) for p in parts] == [4, 4, 2]
+    np.testing.assert_array_equal(np.concatenate([p["b"] for p in parts]), batch["b"])
+    assert chunks({"a": np.arange(0)}, 4) == []
+
+
+# --------------------------------------------------------------------------- #
+# the full pipeline: functional results independent of timing
+# --------------------------------------------------------------------------- #
+W, H, SPP = 64, 48, 4
+
+
+def random_draw(seed=0, n=120):
+    rng = np.random.default_rng(seed)
+    q = np.zeros((n, 3, 4))
+    q[:, :, :2] = rng.uniform(-1, 1, (n, 1, 2)) + rng.normal(0, 0.2, (n, 3, 2))
+    q[:, :, 2] = rng.uniform(-0.8, 0.9, (n, 1)) + rng.normal(0, 0.05, (n, 3))
+    q[:, :, 3] = rng.uniform(0.8, 1.5, (n, 1))
+    q[:, :, :3] *= q[:, :, 3:]
+    r = q.copy()
+    r[:, :, :2] += rng.normal(0, 0.15, (n, 1, 2))
+    r[:, :, 2] += rng.normal(0, 0.05, (n, 1))
+    lx = np.zeros((n, 3, 2))
+    lx[:, :, :] = rng.uniform(0, 0.03, (n, 1, 1))
+    return draw_from_clip(q, r, lx, lx.copy(), rng.uniform(0, 1, (n, 3, 3)), W, H)
+
+
+@pytest.fixture(scope="module")
+def draw():
+    return random_draw()
+
+
+@pytest.fixture(scope="module")
+def baseline(draw):
+    return run_pass(RenderPass(draw=draw, arch=load_arch(), spp=SPP))
+
+
+TIMING_VARIANTS = [
+    ["pipeline.queue_depth=1"],
+    ["pipeline.queue_depth=7"],
+    ["pipeline.triangles_per_batch=1"],
+    ["pipeline.triangles_per_batch=17", "pipeline.tiles_per_batch=3"],
+    ["pipeline.tiles_per_batch=1", "pipeline.queue_depth=2"],
+    ["pipeline.samples_per_batch=2"],
+    ["pipeline.samples_per_batch=97", "pipeline.tiles_per_batch=13"],
+    ["triangle_setup.throughput=0.01", "rop.throughput=0.25", "rop.bandwidth=1.0"],
+    ["tile_test.throughput=100", "sample_tester.throughput=0.5", "shading.throughput=0.1", "shading.cores=1"],
+    ["triangle_setup.latency=0", "tile_traverser.latency=0", "tile_test.latency=0", "zcull.latency=0",
+     "sample_tester.latency=0", "shading.latency=0", "rop.latency=0"],
+    ["triangle_setup.latency=500", "zcull.latency=1000", "rop.latency=3", "shading.shader_cycles=1000"],
+    ["tile_test.instances=7", "sample_tester.instances=1", "rop.instances=4", "zcull.instances=3",
+     "pipeline.queue_depth=1", "pipeline.triangles_per_batch=3"],
+]
+
+
+@pytest.mark.parametrize("overrides", TIMING_VARIANTS, ids=lambda o: ",".join(o)[:60])
+def test_image_independent_of_timing(draw, baseline, overrides):
+    res = run_pass(RenderPass(draw=draw, arch=load_arch(overrides=overrides), spp=SPP))
+    np.testing.assert_array_equal(res.image, baseline.image)
+    np.testing.assert_array_equal(res.depth, baseline.depth)
+    # the work done before z-cull does not depend on timing either
+    for unit in ("triangle_setup", "tile_traverser", "tile_test"):
+        assert res.counter(unit, "records_out") == baseline.counter(unit, "records_out")
+
+
+def test_baseline_is_not_trivial(baseline):
+    assert baseline.dimensions == {"motion": True, "lens": True}
+    assert baseline.counter("rop", "samples_written") > 2000
+    assert len(np.unique(baseline.image.reshape(-1, 4), axis=0)) > 100
+
+
+def _check_records_chain(res):
+    used = res.units_used
+    assert used[0] == "triangle_setup" and used[-1] == "rop"
+    assert [u for u in UNIT_ORDER if u in used] == used
+    for a, b in zip(used, used[1:]):
+        assert res.counter(a, "records_out") == res.counter(b, "records_in"), (a, b)
+    for u in UNIT_ORDER:
+        if u not in used:
+            assert res.counter(u, "records_in") == 0
+    rows = res.timing.units
+    assert rows.unit.tolist() == used
+
+
+def test_records_chain_between_used_units(draw, baseline):
+    _check_records_chain(baseline)
+    assert baseline.counter("triangle_setup", "records_in") == draw.n
+    assert baseline.counter("rop", "records_out") == baseline.counter("rop", "samples_written")
+
+
+def test_records_chain_conservative_mode(draw):
+    res = run_pass(RenderPass(draw=draw, arch=load_arch(overrides=["pipeline.mode=conservative"]), spp=SPP))
+    assert "sample_tester" not in res.units_used
+    _check_records_chain(res)
+
+
+def test_records_chain_with_zcull_bypassed(draw):
+    res = run_pass(RenderPass(draw=draw, arch=load_arch(overrides=["zcull.enabled=false"]), spp=SPP))
+    assert "zcull" not in res.units_used
+    _check_records_chain(res)
+
+
+def test_busy_cycles_closed_forms(draw):
+    """With one item per cycle per unit the busy cycles are the work counters."""
+    arch = load_arch(overrides=["triangle_setup.throughput=0.5", "pipeline.triangles_per_batch=10",
+                                "sample_tester.throughput=1", "sample_tester.instances=1",
+                                "tile_test.throughput=1", "tile_test.instances=1"])
+    res = run_pass(RenderPass(draw=draw, arch=arch, spp=SPP))
+    rows = res.timing.units.set_index("unit")
+    assert rows.loc["triangle_setup"].busy == draw.n / 0.5  # batches of 10: 20 cycles each
+    assert rows.loc["tile_test"].busy == res.counter("tile_test", "records_in")
+    assert rows.loc["sample_tester"].busy == (res.counter("sample_tester", "samples_tested")
+                                              + res.counter("sample_tester", "pixels_visited"))
+    assert res.timing.frame_cycles >= rows.busy.max()
+    assert rows.loc["triangle_setup"].batches == int(np.ceil(draw.n / 10))
+
+
+def test_frame_cycles_change_with_throughput(draw, baseline):
+    slow = run_pass(RenderPass(draw=draw, arch=load_arch(overrides=["sample_tester.throughput=0.25"]), spp=SPP))
+    fast = run_pass(RenderPass(draw=draw, arch=load_arch(overrides=["sample_tester.throughput=1000"]), spp=SPP))
+    assert slow.timing.frame_cycles > baseline.timing.frame_cycles >= fast.timing.frame_cycles
+    # the slow tester alone needs (tested + pixels) * 4 cycles
+    work = slow.counter("sample_tester", "samples_tested") + slow.counter("sample_tester", "pixels_visited")
+    assert slow.timing.frame_cycles >= work / (0.25 * 2)
+    np.testing.assert_array_equal(slow.image, baseline.image)
+
+
+def test_determinism(draw, baseline):
+    again = run_pass(RenderPass(draw=draw, arch=load_arch(), spp=SPP))
+    np.testing.assert_array_equal(again.image, baseline.image)
+    assert again.counters.equals(baseline.counters)
+    assert again.timing.frame_cycles == baseline.timing.frame_cycles
+    assert again.timing.units.equals(baseline.timing.units)
+    assert again.timing.queues.equals(baseline.timing.queues)

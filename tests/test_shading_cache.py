@@ -1,0 +1,479 @@
+"""Shading cache (units/shading_cache.py): keys, replacement, reuse, colors.
+
+The cache key of every sample is computed here independently in float64
+(project sum_k b_k ref[tri, k] to (X/W, Y/W), cell = floor(. / rate)); the
+cache itself is compared with a pure-Python LRU/FIFO model. The set mapping
+(a hash) is an implementation detail, so exact comparisons use a fully
+associative configuration (ways == entries), or a set mapping *observed* by
+probing an empty cache with one key at a time.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from types import SimpleNamespace
+
+import numba as nb
+import numpy as np
+import pytest
+
+from pipeline_sim.config import ShadingConfig, load_arch
+from pipeline_sim.counters import N_OPS
+from pipeline_sim.draw import draw_from_clip
+from pipeline_sim.render import RenderPass, run_pass
+from pipeline_sim.shaders import (IN_B, IN_G, IN_R, IN_T, IN_TRIANGLE, IN_U, IN_V, IN_X, IN_Y, N_INPUTS,
+                                  standard_shader)
+from units.shading_cache import EVENTS, REPL_FIFO, REPL_LRU, Shading, cache_kernel
+
+EV = {name: i for i, name in enumerate(EVENTS)}
+
+
+# --------------------------------------------------------------------------- #
+# stream generation and independent keys
+# --------------------------------------------------------------------------- #
+def make_ref(rng, ntri, width, height, size):
+    """Reference-camera 2DH vertices (X, Y, W), W > 0, projecting inside the screen."""
+    ref = np.zeros((ntri, 3, 3), np.float64)
+    for t in range(ntri):
+        cx = rng.uniform(0, width - size)
+        cy = rng.uniform(0, height - size)
+        sx = cx + rng.uniform(0, size, 3)
+        sy = cy + rng.uniform(0, size, 3)
+        w = rng.uniform(0.5, 2.0, 3)
+        ref[t, :, 0] = sx * w
+        ref[t, :, 1] = sy * w
+        ref[t, :, 2] = w
+    return ref.astype(np.float32)
+
+
+def key_of(ref, tri, b, rate):
+    """(tri, cx, cy) in float64, and the distance (in cells) to the nearest cell border."""
+    p = b.astype(np.float64) @ ref[tri].astype(np.float64)
+    fx, fy = p[0] / p[2] / rate, p[1] / p[2] / rate
+    margin = min(abs(fx - round(fx)), abs(fy - round(fy)))
+    return (int(tri), int(np.floor(fx)), int(np.floor(fy))), margin
+
+
+def centre_inside(ref, key, rate, eps=1e-4):
+    """Is the centre of the key's cell strictly inside the reference triangle?"""
+    tri, cx, cy = key
+    m = ref[tri].astype(np.float64).T  # columns: vertices (X, Y, W)
+    c = np.linalg.solve(m, np.array([(cx + 0.5) * rate, (cy + 0.5) * rate, 1.0]))
+    lam = c / c.sum()
+    return bool(np.all(lam > eps))
+
+
+def make_stream(rng, ref, n, rate, locality=0.85, require_centre=False):
+    """Samples (tri, b0, b1, b2) with temporal locality in the triangle, with
+    their keys. Samples within 1e-3 cells of a cell border are skipped so the
+    float32 kernel and this float64 model agree on the cell."""
+    ntri = ref.shape[0]
+    tris, bs, keys = [], [], []
+    cur = int(rng.integers(ntri))
+    while len(tris) < n:
+        if rng.random() > locality:
+            cur = int(rng.integers(ntri))
+        b = rng.dirichlet([1.0, 1.0, 1.0]).astype(np.float32)
+        key, margin = key_of(ref, cur, b, rate)
+        if margin < 1e-3:
+            continue
+        if require_centre and not centre_inside(ref, key, rate):
+            continue
+        tris.append(cur)
+        bs.append(b)
+        keys.append(key)
+    b = np.array(bs, np.float32).reshape(-1, 3)
+    return np.array(tris, np.int32), b[:, 0].copy(), b[:, 1].copy(), b[:, 2].copy(), keys
+
+
+# --------------------------------------------------------------------------- #
+# pure-Python reference caches
+# --------------------------------------------------------------------------- #
+class RefCache:
+    """Set-associative cache; ``set_of`` maps a key to its set (default: one set)."""
+
+    def __init__(self, entries, ways, policy, set_of=None):
+        self.ways = ways
+        self.policy = policy
+        self.sets = [OrderedDict() for _ in range(entries // ways)]
+        self.set_of = set_of or (lambda key: 0)
+        self.hits = self.misses = self.evictions = 0
+
+    def access(self, key) -> bool:
+        s = self.sets[self.set_of(key)]
+        if key in s:
+            self.hits += 1
+            if self.policy == "lru":
+                s.move_to_end(key)
+            return True
+        self.misses += 1
+        if len(s) == self.ways:
+            s.popitem(last=False)
+            self.evictions += 1
+        s[key] = True
+        return False
+
+
+def encode(key):
+    return np.array([key[0], key[1], key[2], 7.0], np.float32)
+
+
+class KernelCache:
+    """Drives ``cache_kernel`` batch by batch the way ``Shading.run`` does:
+    after each batch every entry filled in the batch gets the color of its last
+    request (here: the request's key, encoded) and its request link is cleared."""
+
+    def __init__(self, entries, ways, policy, ref, rate, grid_w, grid_h):
+        nsets = entries // ways
+        self.tags = np.full((nsets, ways), -1, np.int64)
+        self.stamps = np.zeros((nsets, ways), np.int64)
+        self.entry_req = np.full(entries, -1, np.int32)
+        self.entry_color = np.zeros((entries, 4), np.float32)
+        self.clock = 0
+        self.repl = REPL_LRU if policy == "lru" else REPL_FIFO
+        self.ref, self.rate, self.grid_w, self.grid_h = ref, rate, grid_w, grid_h
+        self.events = np.zeros(len(EVENTS), np.int64)
+
+    def run(self, tri, b0, b1, b2, keys):
+        n = len(tri)
+        out_color = np.full((n, 4), -99.0, np.float32)
+        sample_req = np.empty(n, np.int32)
+        req_entry = np.empty(n, np.int32)
+        req_tri = np.empty(n, np.int32)
+        req_l = np.empty((3, n), np.float64)
+        ops = np.zeros(N_OPS, np.int64)
+        ev = np.zeros(len(EVENTS), np.int64)
+        nreq, self.clock = cache_kernel(tri, b0, b1, b2, self.ref, self.rate, self.grid_w, self.grid_h,
+                                        self.tags, self.stamps, self.entry_req, self.entry_color, self.clock,
+                                        self.repl, out_color, sample_req, req_entry, req_tri, req_l, ops, ev)
+        self.events += ev
+        # classify samples: a miss opens the next request; a hit points at an
+        # earlier request of this batch, or (-1) copied a stored color
+        hit = np.zeros(n, bool)
+        first_of_req = []
+        for i in range(n):
+            r = int(sample_req[i])
+            if r == len(first_of_req):
+                first_of_req.append(i)
+                assert req_tri[r] == tri[i]
+            else:
+                hit[i] = True
+                if r >= 0:
+                    assert r < len(first_of_req)
+                    assert keys[first_of_req[r]] == keys[i], "within-batch hit on another key"
+                else:
+                    np.testing.assert_array_equal(out_color[i], encode(keys[i]),
+                                                  err_msg="hit returned another key's color")
+        assert nreq == len(first_of_req) == ev[EV["misses"]] == ev[EV["shader_executions"]]
+        for r in range(nreq):  # emulate Shading.run: last request of an entry wins
+            self.entry_color[req_entry[r]] = encode(keys[first_of_req[r]])
+        self.entry_req[req_entry[:nreq]] = -1
+        return hit, req_l[:, :nreq].copy(), [keys[i] for i in first_of_req], req_tri[:nreq].copy()
+
+
+def _setup(seed, ntri=8, size=7.0, rate=1.0, width=32, height=24):
+    rng = np.random.default_rng(seed)
+    ref = make_ref(rng, ntri, width, height, size)
+    grid_w = int(np.ceil(width / rate))
+    grid_h = int(np.ceil(height / rate))
+    return rng, ref, grid_w, grid_h
+
+
+# --------------------------------------------------------------------------- #
+# kernel against the reference
+# --------------------------------------------------------------------------- #
+@pytest.mark.parametrize("policy", ["lru", "fifo"])
+@pytest.mark.parametrize("entries", [1, 3, 8, 32])
+@pytest.mark.parametrize("rate", [1.0, 2.0])
+def test_fully_associative_matches_reference(policy, entries, rate):
+    rng, ref, gw, gh = _setup(entries * 7 + int(rate), rate=rate)
+    kc = KernelCache(entries, entries, policy, ref, rate, gw, gh)
+    rc = RefCache(entries, entries, policy)
+    for batch in range(5):
+        tri, b0, b1, b2, keys = make_stream(rng, ref, int(rng.integers(1, 150)), rate)
+        hit, _, _, _ = kc.run(tri, b0, b1, b2, keys)
+        expect = np.array([rc.access(k) for k in keys])
+        np.testing.assert_array_equal(hit, expect, err_msg=f"batch {batch}")
+    ev = kc.events
+    assert ev[EV["hits"]] == rc.hits and ev[EV["misses"]] == rc.misses
+    assert ev[EV["evictions"]] == rc.evictions
+    assert ev[EV["lookups"]] == rc.hits + rc.misses
+    assert rc.hits > 0 and (entries > 8 or rc.evictions > 0)  # the stream exercises both paths
+
+
+@pytest.mark.parametrize("policy", ["lru", "fifo"])
+@pytest.mark.parametrize("entries,ways", [(8, 2), (16, 4), (12, 3)])
+def test_set_associative_matches_reference_with_observed_sets(policy, entries, ways):
+    """The set of a key is observed by looking it up alone in an empty cache;
+    with that mapping, each set must behave as an independent LRU/FIFO cache."""
+    rate = 1.0
+    rng, ref, gw, gh = _setup(entries + ways, rate=rate)
+    streams = [make_stream(rng, ref, 120, rate) for _ in range(4)]
+    probe_set = {}
+    for tri, b0, b1, b2, keys in streams:
+        for i, key in enumerate(keys):
+            if key in probe_set:
+                continue
+            probe = KernelCache(entries, ways, policy, ref, rate, gw, gh)
+            probe.run(tri[i:i + 1], b0[i:i + 1], b1[i:i + 1], b2[i:i + 1], [key])
+            rows = np.nonzero((probe.tags != -1).any(axis=1))[0]
+            assert len(rows) == 1
+            probe_set[key] = int(rows[0])
+    assert len(set(probe_set.values())) > 1
+    kc = KernelCache(entries, ways, policy, ref, rate, gw, gh)
+    rc = RefCache(entries, ways, policy, set_of=probe_set.__getitem__)
+    for tri, b0, b1, b2, keys in streams:
+        hit, _, _, _ = kc.run(tri, b0, b1, b2, keys)
+        np.testing.assert_array_equal(hit, [rc.access(k) for k in keys])
+    assert kc.events[EV["evictions"]] == rc.evictions
+
+
+def test_request_barycentrics_are_the_cell_centre():
+    """A miss's barycentrics (req_l) project, through the reference camera, to
+    the centre of the sample's shading cell (when that centre is inside)."""
+    rate = 2.0
+    rng, ref, gw, gh = _setup(21, size=14.0, rate=rate)
+    kc = KernelCache(16, 16, "lru", ref, rate, gw, gh)
+    tri, b0, b1, b2, keys = make_stream(rng, ref, 300, rate, require_centre=True)
+    _, req_l, req_keys, req_tri = kc.run(tri, b0, b1, b2, keys)
+    assert len(req_keys) > 10
+    for r, key in enumerate(req_keys):
+        assert req_tri[r] == key[0]
+        lam = req_l[:, r]
+        assert np.all(lam >= 0) and abs(lam.sum() - 1) < 1e-9
+        p = lam @ ref[key[0]].astype(np.float64)
+        np.testing.assert_allclose([p[0] / p[2], p[1] / p[2]],
+                                   [(key[1] + 0.5) * rate, (key[2] + 0.5) * rate], atol=1e-3)
+
+
+def test_hit_rate_rises_with_cache_size():
+    """LRU is a stack algorithm: for a fully associative cache the hits can only
+    grow with the size; on a stream with reuse they must strictly grow overall."""
+    rng, ref, gw, gh = _setup(5)
+    stream = [make_stream(rng, ref, 200, 1.0) for _ in range(3)]
+    hits = []
+    for entries in (1, 2, 4, 8, 16, 32, 64, 128):
+        kc = KernelCache(entries, entries, "lru", ref, 1.0, gw, gh)
+        for s in stream:
+            kc.run(*s)
+        hits.append(int(kc.events[EV["hits"]]))
+    assert all(a <= b for a, b in zip(hits, hits[1:])), hits
+    assert hits[-1] > hits[0]
+    distinct = len({k for s in stream for k in s[4]})
+    assert distinct <= 128
+    assert hits[-1] == 600 - distinct  # the largest cache only takes compulsory misses
+
+
+def test_reference_w_nonpositive_never_hits_across_batches():
+    ref = np.zeros((2, 3, 3), np.float32)
+    ref[:, :, 0] = 1.0
+    ref[:, :, 1] = 1.0
+    ref[:, :, 2] = -1.0  # surface point behind the reference camera
+    kc = KernelCache(4, 4, "lru", ref, 1.0, 8, 8)
+    third = np.array([1 / 3], np.float32)
+    for tr in (0, 1):
+        kc.run(np.array([tr], np.int32), third, third, third, [(tr, 999, 999)])
+    assert kc.events[EV["hits"]] == 0  # documented: "unique: never hits"
+
+
+# --------------------------------------------------------------------------- #
+# the Shading unit: shaded colors and 1:1 mode
+# --------------------------------------------------------------------------- #
+@nb.njit
+def cell_shader(inputs, params, texture, out):
+    """Returns (triangle, cell x, cell y): the interpolated 'color' is the
+    reference-camera (X, Y, W) of the shading point (see below)."""
+    rate = params[0]
+    for i in range(inputs.shape[1]):
+        w = inputs[IN_B, i]
+        out[i, 0] = inputs[IN_TRIANGLE, i]
+        out[i, 1] = np.floor(inputs[IN_R, i] / w / rate)
+        out[i, 2] = np.floor(inputs[IN_G, i] / w / rate)
+        out[i, 3] = 1.0
+
+
+def _shading_unit(cfg, ref, width, height, spp, shader, rng):
+    ntri = ref.shape[0]
+    draw = draw_from_clip(rng.uniform(-1, 1, (ntri, 3, 4)), width=width, height=height)
+    # vertex "color" = reference-camera (X, Y, W): interpolating it with the
+    # request's barycentrics gives the homogeneous shading point
+    draw.color = ref.astype(np.float32).copy()
+    npix = width * height
+    samples = SimpleNamespace(spp=spp, width=width, height=height,
+                              x=rng.random(npix * spp).astype(np.float32),
+                              y=rng.random(npix * spp).astype(np.float32),
+                              u=rng.uniform(-1, 1, npix * spp).astype(np.float32),
+                              v=rng.uniform(-1, 1, npix * spp).astype(np.float32),
+                              t=rng.random(npix * spp).astype(np.float32))
+    table = SimpleNamespace(ref=ref)
+    return Shading(cfg, draw, table, samples, shader, np.array([cfg.shading_rate], np.float32), None, False)
+
+
+def _batch(rng, tri, b0, b1, b2, npix, spp):
+    n = len(tri)
+    return dict(tri=tri, pix=rng.integers(0, npix, n).astype(np.int32),
+                sidx=rng.integers(0, spp, n).astype(np.int32), z=rng.random(n).astype(np.float32),
+                b0=b0, b1=b1, b2=b2, noread=np.zeros(n, bool))
+
+
+@pytest.mark.parametrize("entries,ways,policy", [(4, 4, "lru"), (8, 2, "fifo"), (64, 8, "lru")])
+def test_cache_mode_color_is_shader_at_the_samples_request(entries, ways, policy):
+    width, height, spp, rate = 32, 24, 4, 2.0
+    rng, ref, _, _ = _setup(entries + ways, ntri=6, size=14.0, rate=rate, width=width, height=height)
+    cfg = ShadingConfig(mode="cache", cache_entries=entries, cache_ways=ways, replacement=policy,
+                        shading_rate=rate)
+    unit = _shading_unit(cfg, ref, width, height, spp, cell_shader, rng)
+    execs = 0
+    for _ in range(5):
+        tri, b0, b1, b2, keys = make_stream(rng, ref, int(rng.integers(1, 200)), rate, require_centre=True)
+        out, _, ev = unit.run(_batch(rng, tri, b0, b1, b2, width * height, spp))
+        expect = np.array([[k[0], k[1], k[2], 1.0] for k in keys], np.float32)
+        np.testing.assert_array_equal(out["color"], expect)
+        assert ev[EV["lookups"]] == len(tri)
+        execs += ev[EV["shader_executions"]]
+    assert execs < 5 * 200  # some reuse happened
+
+
+def test_per_sample_mode_shades_every_sample_once_at_its_own_point():
+    width, height, spp = 16, 8, 4
+    rng, ref, _, _ = _setup(9, ntri=5, size=6.0, width=width, height=height)
+    calls = []
+
+    def recording_shader(inputs, params, texture, out):
+        calls.append(inputs.copy())
+        out[:, 0] = inputs[IN_X]
+        out[:, 1] = inputs[IN_Y]
+        out[:, 2] = inputs[IN_T]
+        out[:, 3] = inputs[IN_TRIANGLE]
+
+    cfg = ShadingConfig(mode="per_sample")
+    unit = _shading_unit(cfg, ref, width, height, spp, recording_shader, rng)
+    s = unit.samples
+    for n in (0, 1, 37, 120):
+        tri, b0, b1, b2, _ = make_stream(rng, ref, n, 1.0)
+        batch = _batch(rng, tri, b0, b1, b2, width * height, spp)
+        calls.clear()
+        out, _, ev = unit.run(batch)
+        rows = sum(c.shape[1] for c in calls)
+        assert rows == n and ev[EV["shader_executions"]] == n and ev[EV["lookups"]] == n
+        if n == 0:
+            continue
+        inp = np.concatenate(calls, axis=1)
+        k = batch["pix"].astype(np.int64) * spp + batch["sidx"]
+        py, px = np.divmod(batch["pix"], width)
+        np.testing.assert_allclose(inp[IN_X], px + s.x[k], rtol=1e-6)
+        np.testing.assert_allclose(inp[IN_Y], py + s.y[k], rtol=1e-6)
+        np.testing.assert_array_equal(inp[IN_T], s.t[k])
+        np.testing.assert_array_equal(inp[IN_U], s.u[k])
+        np.testing.assert_array_equal(inp[IN_V], s.v[k])
+        np.testing.assert_array_equal(inp[IN_TRIANGLE], tri)
+        np.testing.assert_array_equal(out["color"], inp[[IN_X, IN_Y, IN_T, IN_TRIANGLE]].T)
+        assert inp.shape[0] == N_INPUTS
+
+
+def _moving_draw(seed, n=40, width=48, height=32):
+    rng = np.random.default_rng(seed)
+    c = rng.uniform(-0.9, 0.9, (n, 1, 2))
+    q = np.zeros((n, 3, 4))
+    q[:, :, :2] = c + rng.normal(0, 0.25, (n, 3, 2))
+    q[:, :, 2] = rng.uniform(-0.5, 0.9, (n, 1))
+    q[:, :, 3] = 1.0
+    r = q.copy()
+    r[:, :, :2] += rng.normal(0, 0.15, (n, 1, 2))
+    lx = np.zeros((n, 3, 2))
+    lx[:, :, :] = rng.uniform(0, 0.05, (n, 1, 1))
+    return draw_from_clip(q, r, lx, lx.copy(), rng.uniform(0, 1, (n, 3)), width, height)
+
+
+def test_per_sample_mode_in_the_pipeline_one_execution_per_covered_sample():
+    draw = _moving_draw(3)
+    rows = []
+
+    def counting_shader(inputs, params, texture, out):
+        rows.append(inputs[[IN_X, IN_Y, IN_T, IN_U, IN_V, IN_TRIANGLE]].T.copy())
+        standard_shader(inputs, params, texture, out)
+
+    arch = load_arch(overrides=["shading.mode=per_sample", "pipeline.samples_per_batch=500"])
+    res = run_pass(RenderPass(draw=draw, arch=arch, spp=4, shader=counting_shader))
+    covered = res.counter("sample_tester", "samples_covered")
+    allrows = np.concatenate(rows)
+    assert covered > 1000
+    assert len(allrows) == covered == res.counter("shading", "shader_executions")
+    # every row is a distinct (sample (x, y, t, u, v), triangle): none shaded twice
+    assert len(np.unique(allrows, axis=0)) == len(allrows)
+
+
+def test_cache_mode_in_the_pipeline_executes_fewer_shaders_and_counts_add_up():
+    draw = _moving_draw(4)
+    res = run_pass(RenderPass(draw=draw, arch=load_arch(), spp=8))
+    c = lambda name: res.counter("shading", name)  # noqa: E731
+    assert c("lookups") == res.counter("sample_tester", "samples_covered")
+    assert c("hits") + c("misses") == c("lookups")
+    assert c("shader_executions") == c("misses") < c("lookups")
+
+
+@pytest.mark.parametrize("overrides", [
+    ["shading.cache_entries=16", "shading.cache_ways=4", "pipeline.samples_per_batch=64"],
+    ["shading.cache_entries=8", "shading.cache_ways=8", "shading.replacement=fifo",
+     "shading.shading_rate=2", "pipeline.samples_per_batch=33"],
+    ["shading.shading_rate=3"],
+])
+def test_cache_mode_in_the_pipeline_colors_follow_keys(monkeypatch, overrides):
+    """Through run_pass, with the cell shader: every sample reaching the ROP
+    carries (its triangle, its shading cell) as color, the cell computed here
+    from its barycentrics and the reference-camera vertices."""
+    import pipeline_sim.render as render
+    from units.rop import Rop
+    from units.triangle_setup import TriangleSetup
+
+    draw = _moving_draw(8, n=30)
+    arch = load_arch(overrides=overrides)
+    rate = arch.shading.shading_rate
+    setup = TriangleSetup(arch.triangle_setup, draw, arch.tile_traverser.tile_size)
+    setup.run(np.arange(draw.n, dtype=np.int64))
+    ref = setup.table.ref.copy()
+    draw.color = ref.astype(np.float32).copy()  # see cell_shader
+    batches = []
+
+    class RecordingRop(Rop):
+        def run(self, batch):
+            batches.append({k: v.copy() for k, v in batch.items()})
+            return super().run(batch)
+
+    monkeypatch.setattr(render, "Rop", RecordingRop)
+    res = run_pass(RenderPass(draw=draw, arch=arch, spp=4, shader=cell_shader,
+                              params=np.array([rate], np.float32)))
+    grid_w, grid_h = int(np.ceil(draw.width / rate)), int(np.ceil(draw.height / rate))
+    checked = 0
+    for b in batches:
+        for i in range(len(b["tri"])):
+            bc = np.array([b["b0"][i], b["b1"][i], b["b2"][i]], np.float32)
+            key, margin = key_of(ref, int(b["tri"][i]), bc, rate)
+            # cells off the shading grid are merged into a border cell by the
+            # kernel (clamp to -1 / grid size): only on-grid cells are checked
+            if not (0 <= key[1] < grid_w and 0 <= key[2] < grid_h):
+                continue
+            if margin < 1e-3 or not centre_inside(ref, key, rate):
+                continue
+            np.testing.assert_array_equal(b["color"][i], [key[0], key[1], key[2], 1.0])
+            checked += 1
+    assert checked > 1000
+    assert res.counter("shading", "hits") > 0
+    if arch.shading.cache_entries <= 16:
+        assert res.counter("shading", "evictions") > 0
+
+
+def test_triangles_behind_reference_camera_keep_their_own_color():
+    # two triangles moving from w=1 (t=0) to w=-3 (t=1): at the reference time
+    # t=0.5 their surface is behind the camera (W=-1), early samples see them
+    q = np.array([[[-0.9, -0.9, 0, 1], [-0.1, -0.9, 0, 1], [-0.5, 0.5, 0, 1]],
+                  [[0.1, -0.9, 0, 1], [0.9, -0.9, 0, 1], [0.5, 0.5, 0, 1]]], float)
+    r = q.copy()
+    r[:, :, 3] = -3.0
+    r[:, :, :2] *= -3.0
+    draw = draw_from_clip(q, r, color=np.array([[1, 0, 0], [0, 1, 0]], np.float32), width=32, height=32)
+    big = run_pass(RenderPass(draw=draw, arch=load_arch(), spp=16))
+    # the right triangle is green, the left one red (flat material: color = vertex color)
+    assert big.image[:, 16:, 1].sum() > 10 and big.image[:, 16:, 0].sum() == 0
+    small = run_pass(RenderPass(draw=draw, arch=load_arch(overrides=["pipeline.samples_per_batch=1"]), spp=16))
+    np.testing.assert_array_equal(small.image, big.image)
