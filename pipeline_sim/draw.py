@@ -30,7 +30,9 @@ class Draw:
     ``lens_y`` (N,3,2) float64 clip shift per unit lens coordinate at t=0 and
     t=1; ``pos`` and ``nrm`` (2,N,3,3) float32 world position and normal at
     t=0 and t=1; ``color`` (N,3,3) float32; ``material`` (N,) int32;
-    ``object_id`` (N,) int32.
+    ``object_id`` (N,) int32. ``depth_w`` = (c1, c0) when every vertex's
+    depth is z/w = c1 + c0 / w (a perspective projection, c0 < 0): it lets
+    the tile test turn bounds on w into bounds on depth (000 Appendix A).
     """
 
     q: np.ndarray
@@ -44,6 +46,7 @@ class Draw:
     object_id: np.ndarray
     width: int
     height: int
+    depth_w: tuple[float, float] | None = None
 
     @property
     def n(self) -> int:
@@ -109,6 +112,7 @@ def build_draw(scene) -> Draw:
         object_id=np.concatenate(oid),
         width=img.width,
         height=img.height,
+        depth_w=(float(-proj[2, 2]), float(proj[2, 3])) if cam.projection == "perspective" else None,
     )
 
 

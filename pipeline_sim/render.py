@@ -107,7 +107,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
 
     setup = TriangleSetup(arch.triangle_setup, draw, ts)
     traverser = TileTraverser(arch.tile_traverser, setup.table, ts, draw.width, draw.height)
-    tile_test = TileTest(arch.tile_test, setup.table, ts, draw.width, draw.height)
+    tile_test = TileTest(arch.tile_test, setup.table, ts, draw.width, draw.height, draw.depth_w)
     zcull = ZCull(arch.zcull, arch.rop.depth_test, ts, draw.width, draw.height, p.clear_depth)
     if conservative:
         zcull.active = False

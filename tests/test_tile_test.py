@@ -12,21 +12,23 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from triangles import moving_triangle, sample_inside_points, setup_and_tiles
+from triangles import PERSPECTIVE, moving_triangle, sample_inside_points, setup_and_tiles
 from units.triangle_setup import ST_DEGENERATE
 
 W, H = 48, 32
 
 
-def assert_conservative(q, r, lx, ly, seed, tile_size=8, coarse_factor=2, edge_test=True, lens_bounds=True):
-    setup, alive, kept = setup_and_tiles(q, r, lx, ly, W, H, tile_size, coarse_factor, edge_test, lens_bounds)
+def assert_conservative(q, r, lx, ly, seed, tile_size=8, coarse_factor=2, edge_test=True, lens_bounds=True,
+                        depth_w=None):
+    setup, alive, kept = setup_and_tiles(q, r, lx, ly, W, H, tile_size, coarse_factor, edge_test, lens_bounds,
+                                         depth_w=depth_w)
     rng = np.random.default_rng(seed)
     pts = sample_inside_points(setup, 0, rng, 200, W, H)
     if not pts:
         return 0
     if 0 not in alive and setup.last_status[0] == ST_DEGENERATE:
-        # dropped as degenerate: it must really have (almost) no area anywhere in (t, u, v)
-        assert relative_det_max(q, r, lx, ly) < 1e-8
+        # dropped as degenerate: it must have no area anywhere in (t, u, v)
+        assert relative_det_max(q, r, lx, ly) < 1e-12
         return 0
     assert 0 in alive, "setup culled a triangle that covers samples"
     bx0, bx1, by0, by1 = setup.table.bounds[0]
@@ -66,6 +68,28 @@ def test_tile_test_conservative_defocus_only(tri, seed):
        st.sampled_from([1, 3]))
 def test_tile_test_conservative_tile_sizes(tri, seed, tile_size, coarse):
     assert_conservative(*tri, seed, tile_size=tile_size, coarse_factor=coarse)
+
+
+@given(moving_triangle(perspective=True), st.integers(0, 2**31), st.sampled_from([1, 4, 16]))
+def test_moving_plane_depth_bounds_conservative(tri, seed, tile_size):
+    """z^ with the moving plane equations of 000 Appendix A (perspective depth)."""
+    assert_conservative(*tri, seed, tile_size=tile_size, depth_w=PERSPECTIVE)
+
+
+def test_moving_plane_tightens_depth_interval():
+    # a large tilted, moving quad-like triangle: per-tile z^ from the planes is
+    # much narrower than the vertex range
+    q = np.array([[[-1.0, -1.0, 0.0, 1.0], [1.0, -1.0, 0.0, 1.0], [0.0, 2.0, 0.0, 3.0]]])
+    q[0, :, 2] = PERSPECTIVE[0] * q[0, :, 3] + PERSPECTIVE[1]
+    r = q + np.array([0.1, 0.05, 0.0, 0.0])
+    zero = np.zeros((1, 3, 2))
+    _, _, plain = setup_and_tiles(q, r, zero, zero, 96, 64)
+    _, _, planes = setup_and_tiles(q, r, zero, zero, 96, 64, depth_w=PERSPECTIVE)
+    assert len(plain["tri"]) == len(planes["tri"]) > 4
+    assert np.all(planes["z_lo"] >= plain["z_lo"] - 1e-6) and np.all(planes["z_hi"] <= plain["z_hi"] + 1e-6)
+    width_plain = np.mean(plain["z_hi"] - plain["z_lo"])
+    width_planes = np.mean(planes["z_hi"] - planes["z_lo"])
+    assert width_planes < 0.5 * width_plain, (width_plain, width_planes)
 
 
 def test_crossing_w0_triangle_is_kept_and_covers():

@@ -17,9 +17,15 @@ def finite(lo, hi):
     return st.floats(lo, hi, allow_nan=False, allow_infinity=False)
 
 
+# z/w = C1 + C0 / w of a perspective projection with near 0.1 and far 10
+PERSPECTIVE = (1.0202020202020203, -0.20202020202020202)
+
+
 @st.composite
-def moving_triangle(draw, *, lens=True, motion=True, allow_w_cross=True, scale=1.0):
-    """A triangle as (q, r, lens_x, lens_y), each (1,3,...) float64 clip space."""
+def moving_triangle(draw, *, lens=True, motion=True, allow_w_cross=True, scale=1.0, perspective=False):
+    """A triangle as (q, r, lens_x, lens_y), each (1,3,...) float64 clip space.
+
+    With ``perspective`` every vertex has z = C1 w + C0 (PERSPECTIVE)."""
     wlo = -1.0 if allow_w_cross else 0.2
     q = np.zeros((1, 3, 4))
     r = np.zeros((1, 3, 4))
@@ -32,9 +38,14 @@ def moving_triangle(draw, *, lens=True, motion=True, allow_w_cross=True, scale=1
             arr[0, k] = (x, y, z, w)
     if not motion:
         r = q.copy()
+    if perspective:
+        for arr in (q, r):
+            arr[0, :, 2] = PERSPECTIVE[0] * arr[0, :, 3] + PERSPECTIVE[1]
     if draw(st.booleans()) and motion:  # adversarial: pure translation (near-linear edges)
         d = np.array([draw(finite(-1, 1)), draw(finite(-1, 1)), 0.0, 0.0])
         r = q + d
+        if perspective:
+            r[0, :, 2] = PERSPECTIVE[0] * r[0, :, 3] + PERSPECTIVE[1]
     lx = np.zeros((1, 3, 2))
     ly = np.zeros((1, 3, 2))
     if lens:
@@ -48,12 +59,13 @@ def moving_triangle(draw, *, lens=True, motion=True, allow_w_cross=True, scale=1
 
 
 def setup_and_tiles(q, r, lx, ly, width=48, height=32, tile_size=8, coarse_factor=2, edge_test=True,
-                    lens_bounds=True, backface_culling=False):
+                    lens_bounds=True, backface_culling=False, depth_w=None):
     """Run triangle setup, the traverser and the tile test on one draw.
 
     Returns (setup, survivors of setup, tile records kept by the tile test).
     """
     d = draw_from_clip(q, r, lx, ly, width=width, height=height)
+    d.depth_w = depth_w
     arch = load_arch(overrides=[f"tile_traverser.coarse_factor={coarse_factor}",
                                 f"tile_test.edge_test={'true' if edge_test else 'false'}",
                                 f"tile_test.lens_bounds={'true' if lens_bounds else 'false'}",
@@ -63,7 +75,7 @@ def setup_and_tiles(q, r, lx, ly, width=48, height=32, tile_size=8, coarse_facto
     alive, _, _ = setup.run(ids)
     trav = TileTraverser(arch.tile_traverser, setup.table, tile_size, width, height)
     tiles, _, _ = trav.run(alive)
-    tt = TileTest(arch.tile_test, setup.table, tile_size, width, height)
+    tt = TileTest(arch.tile_test, setup.table, tile_size, width, height, depth_w)
     kept, _, _ = tt.run(tiles)
     return setup, alive, kept
 

@@ -108,8 +108,12 @@ def inside_test(p0, dp, l0, dl, tri, x, y, t, u, v, backface_culling, edge_eps):
     Z0 = p0[tri, 0, 2] + t * dp[tri, 0, 2]
     Z1 = p0[tri, 1, 2] + t * dp[tri, 1, 2]
     Z2 = p0[tri, 2, 2] + t * dp[tri, 2, 2]
-    # z/w = sum(e_k Z_k) / D; with e oriented by the sign of D that is / |D|
-    z = np.float32((e0 * Z0 + e1 * Z1 + e2 * Z2) / abs(D))
+    # z/w = sum(e_k Z_k) / sum(e_k W_k) (the denominator is |D| in exact
+    # arithmetic; summing non-negative e_k avoids D's cancellation)
+    den = e0 * W0 + e1 * W1 + e2 * W2
+    if den == 0.0:
+        return False, np.float32(0.0), np.float32(0.0), np.float32(0.0), np.float32(0.0)
+    z = np.float32((e0 * Z0 + e1 * Z1 + e2 * Z2) / den)
     if not (z >= -1.0 and z <= 1.0):
         return False, np.float32(0.0), np.float32(0.0), np.float32(0.0), np.float32(0.0)
     inv = 1.0 / tot

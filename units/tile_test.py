@@ -26,7 +26,7 @@ import numba as nb
 import numpy as np
 
 from pipeline_sim.counters import N_OPS, OP_ADD, OP_CMP, OP_MADD, OP_MUL, OP_RCP
-from units.triangle_setup import FLAG_EDGE, FLAG_LENS, FLAG_WPOS
+from units.triangle_setup import FLAG_EDGE, FLAG_LENS, FLAG_PLANE, FLAG_WPOS
 
 EVENTS = ("rejected_box", "rejected_edge", "rejected_lens", "rejected_frustum_time", "accepted")
 EV_REJ_BOX, EV_REJ_EDGE, EV_REJ_LENS, EV_REJ_TIME, EV_ACCEPT = range(len(EVENTS))
@@ -180,8 +180,65 @@ def _lens_interval(p0, dp, l0, dl, tri, axis, a0, a1, ta, tb, ops):
 
 
 @nb.njit(cache=True)
+def plane_w_bounds(plane_n, plane_d, tri, x0, x1, y0, y1, ta, tb, ops):
+    """Bounds on w over the tile and [ta, tb] from the moving planes (000 App. A).
+
+    The triangle stays on one side of the plane n . P + d0 + v t = 0 for all
+    t. On the ray P = w (x, y, 1) that gives w <= -D(t) / N or w >= -D(t) / N
+    with N = n . (x, y, 1), depending on the side and the sign of N. A plane
+    is used only where N keeps one sign over the tile and -D(t) keeps the
+    bound's sign over [ta, tb] (the plane does not sweep through the camera).
+    """
+    w_lo = 0.0
+    w_hi = np.inf
+    for which in range(2):
+        nx = plane_n[tri, which, 0]
+        ny = plane_n[tri, which, 1]
+        nw = plane_n[tri, which, 2]
+        if nx != nx:
+            continue
+        n_min = np.inf
+        n_max = -np.inf
+        for cx in range(2):
+            for cy in range(2):
+                val = nx * (x0 if cx == 0 else x1) + ny * (y0 if cy == 0 else y1) + nw
+                n_min = min(n_min, val)
+                n_max = max(n_max, val)
+        ops[OP_MADD] += 8
+        ops[OP_CMP] += 8
+        if n_min > 0.0:
+            sgn = 1.0
+            a_min = n_min
+            a_max = n_max
+        elif n_max < 0.0:
+            sgn = -1.0
+            a_min = -n_max
+            a_max = -n_min
+        else:
+            continue
+        # upper bound from the side whose sign matches N's, lower from the other
+        for side in range(2):
+            side_sgn = 1.0 if side == 0 else -1.0
+            d0 = sgn * plane_d[tri, which, side, 0]
+            v = sgn * plane_d[tri, which, side, 1]
+            ga = -(d0 + v * ta)
+            gb = -(d0 + v * tb)
+            if side_sgn == sgn:  # w <= -D / N
+                if ga > 0.0 and gb > 0.0:
+                    w_hi = min(w_hi, max(ga, gb) / a_min)
+            else:  # w >= -D / N
+                g = min(ga, gb)
+                if g > 0.0:
+                    w_lo = max(w_lo, g / a_max)
+        ops[OP_MADD] += 4
+        ops[OP_RCP] += 2
+        ops[OP_MUL] += 2
+    return w_lo, w_hi
+
+
+@nb.njit(cache=True)
 def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, edge_test, lens_bounds,
-                     p0, dp, l0, dl, t_span, flags, edge_h, edge_gamma,
+                     p0, dp, l0, dl, t_span, flags, edge_h, edge_gamma, plane_n, plane_d, depth_c1, depth_c0,
                      out_keep, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, ops, events):
     """Test each (triangle, tile) record; fill its intervals and ``out_keep``.
 
@@ -226,6 +283,13 @@ def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, edge_tes
                     z = (p0[tri, k, 2] + t * dp[tri, k, 2]) / (p0[tri, k, 3] + t * dp[tri, k, 3])
                     zl = min(zl, z)
                     zh = max(zh, z)
+            if (fl & FLAG_PLANE) != 0:
+                w_lo, w_hi = plane_w_bounds(plane_n, plane_d, tri, x0, x1, y0, y1, lo, hi, ops)
+                # z/w = c1 + c0 / w grows with w (c0 < 0)
+                if w_hi < np.inf:
+                    zh = min(zh, depth_c1 + depth_c0 / w_hi)
+                if w_lo > 0.0:
+                    zl = max(zl, depth_c1 + depth_c0 / w_lo)
             pad = 1e-6 * (1.0 + abs(zl) + abs(zh))
             zl = max(-1.0, zl - pad)
             zh = min(1.0, zh + pad)
@@ -251,12 +315,14 @@ class TileTest:
     name = "tile_test"
     events = EVENTS
 
-    def __init__(self, config, table, tile_size: int, width: int, height: int):
+    def __init__(self, config, table, tile_size: int, width: int, height: int,
+                 depth_w: tuple[float, float] | None = None):
         self.config = config
         self.table = table
         self.tile_size = tile_size
         self.width = width
         self.height = height
+        self.depth_c1, self.depth_c0 = depth_w if depth_w is not None else (0.0, 0.0)
 
     def run(self, tiles: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
         """Test a batch of tile records; return the survivors with intervals."""
@@ -268,7 +334,8 @@ class TileTest:
         t = self.table
         tile_test_kernel(tiles["tri"], tiles["tx"], tiles["ty"], self.tile_size, self.width, self.height,
                          self.config.edge_test, self.config.lens_bounds, t.p0, t.dp, t.l0, t.dl,
-                         t.t_span, t.flags, t.edge_h, t.edge_gamma, keep,
+                         t.t_span, t.flags, t.edge_h, t.edge_gamma, t.plane_n, t.plane_d, self.depth_c1,
+                         self.depth_c0, keep,
                          iv["t_lo"], iv["t_hi"], iv["u_lo"], iv["u_hi"], iv["v_lo"], iv["v_hi"],
                          iv["z_lo"], iv["z_hi"], ops, events)
         out = {name: arr[keep] for name, arr in tiles.items()}

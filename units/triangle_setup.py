@@ -43,9 +43,9 @@ EV_FRUSTUM, EV_BACKFACE, EV_DEGENERATE, EV_W0, EV_MOVING, EV_DEFOCUS, EV_MIXED =
 
 ST_OK, ST_FRUSTUM, ST_BACKFACE, ST_DEGENERATE = 0, 1, 2, 3
 W_EPS = 1e-9  # w below this counts as crossing the camera plane
-# a triangle whose 2DH determinant stays below this fraction of |p0||p1||p2|
-# for every (t, u, v) has no area: it is dropped as degenerate
-DEGENERATE_REL = 1e-10
+# facing (front or back for every (t, u, v)) is claimed only when every
+# Bernstein coefficient of D exceeds this fraction of |p0||p1||p2|
+FACING_REL = 1e-10
 
 
 @dataclass
@@ -73,6 +73,8 @@ class TriangleTable:
     edge_gamma: np.ndarray  # (N,3) upper slope bound Gamma per edge
     ref: np.ndarray  # (N,3,3) float32 reference-camera (t=0.5, lens centre) X, Y, W
     edge_eps: np.ndarray  # (N,) float32 error bound of a float32 edge-function value
+    plane_n: np.ndarray  # (N,2,3) normals of the triangle's plane at t=0 and t=1 (X, Y, W space)
+    plane_d: np.ndarray  # (N,2,2,2) [normal, side (+ below / - above), (d0, v)] moving planes
 
     @classmethod
     def allocate(cls, n: int) -> "TriangleTable":
@@ -86,10 +88,11 @@ class TriangleTable:
             facing=np.zeros(n, np.int8), flags=np.zeros(n, np.int8),
             edge_h=np.zeros((n, 3, 3), f64), edge_gamma=np.zeros((n, 3), f64),
             ref=np.zeros((n, 3, 3), f32), edge_eps=np.zeros(n, f32),
+            plane_n=np.zeros((n, 2, 3), f64), plane_d=np.zeros((n, 2, 2, 2), f64),
         )
 
 
-FLAG_LENS, FLAG_WPOS, FLAG_EDGE, FLAG_MOVING = 1, 2, 4, 8
+FLAG_LENS, FLAG_WPOS, FLAG_EDGE, FLAG_MOVING, FLAG_PLANE = 1, 2, 4, 8, 16
 
 
 @nb.njit(cache=True)
@@ -118,7 +121,7 @@ def _det(x0, y0, w0, x1, y1, w1, x2, y2, w2):
 @nb.njit(cache=True)
 def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_culling,
                  p0, dp, l0, dl, p0_32, dp_32, l0_32, dl_32, t_span, bounds, facing, flags,
-                 edge_h, edge_gamma, ref, edge_eps, status, ops, events):
+                 edge_h, edge_gamma, ref, edge_eps, plane_n, plane_d, depth_planes, status, ops, events):
     """Triangle setup for the triangles ``ids`` (PIPELINE §2.1; 002 §3-4, 004 eq. 3-5).
 
     Writes the per-triangle tables in place, ``status`` per batch item and
@@ -266,11 +269,13 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
                     bern_max = max(bern_max, f[0])
         ops[OP_MADD] += (4 if moving else 1) * nu * nu * 15
         ops[OP_MUL] += (4 if moving else 1) * nu * nu * 6
-        tol = DEGENERATE_REL * scale
-        if bern_max <= tol and bern_min >= -tol:
+        # only an exactly zero determinant is dropped: a tiny one can still
+        # cover samples (a vertex near the 2DH origin keeps its direction)
+        if bern_max == 0.0 and bern_min == 0.0:
             status[b] = ST_DEGENERATE
             events[EV_DEGENERATE] += 1
             continue
+        tol = FACING_REL * scale  # facing is only claimed with a clear margin
         if bern_min > tol:
             facing[tri] = 1
         elif bern_max < -tol:
@@ -377,6 +382,41 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
             ops[OP_MUL] += 3 * 18
             ops[OP_MADD] += 3 * 18
             ops[OP_CMP] += 3 * 6
+        # ---- moving plane equations for depth bounds (000 Appendix A) -------
+        if depth_planes and wpos:
+            for which in range(2):
+                # plane through the triangle at t=0 (which=0) or t=1 (which=1), in (X, Y, W)
+                e1 = px[which, 1] - px[which, 0]
+                e2 = px[which, 2] - px[which, 0]
+                nv = np.empty(3)
+                _cross3(e1[0], e1[1], e1[3], e2[0], e2[1], e2[3], nv)
+                nl = abs(nv[0]) + abs(nv[1]) + abs(nv[2])
+                if nl == 0.0:
+                    plane_n[tri, which, 0] = np.nan  # no plane: test off
+                    continue
+                for c in range(3):
+                    plane_n[tri, which, c] = nv[c] / nl
+                # extremes of n . p over the vertices and lens positions at t=0 and t=1
+                for s in range(2):
+                    hi_v = -np.inf
+                    lo_v = np.inf
+                    for k in range(3):
+                        base = (plane_n[tri, which, 0] * px[s, k, 0] + plane_n[tri, which, 1] * px[s, k, 1]
+                                + plane_n[tri, which, 2] * px[s, k, 3])
+                        spread = abs(plane_n[tri, which, 0] * lx[s, k, 0]) + abs(plane_n[tri, which, 1] * lx[s, k, 1])
+                        hi_v = max(hi_v, base + spread)
+                        lo_v = min(lo_v, base - spread)
+                    # side + : n.P + D(t) <= 0 for the triangle; side - : n.P + D(t) >= 0
+                    # with D(t) = d0 + v t; value at s=0 is d0, at s=1 is d0 + v
+                    if s == 0:
+                        plane_d[tri, which, 0, 0] = -hi_v
+                        plane_d[tri, which, 1, 0] = -lo_v
+                    else:
+                        plane_d[tri, which, 0, 1] = -hi_v - plane_d[tri, which, 0, 0]
+                        plane_d[tri, which, 1, 1] = -lo_v - plane_d[tri, which, 1, 0]
+            fl |= FLAG_PLANE
+            ops[OP_MUL] += 2 * (6 + 3 * 2 * 5)
+            ops[OP_MADD] += 2 * (6 + 3 * 2 * 4)
         flags[tri] = fl
         status[b] = ST_OK
 
@@ -409,6 +449,7 @@ class TriangleSetup:
         setup_kernel(ids, d.q, d.r, d.lens_x, d.lens_y, d.width, d.height, self.tile_size,
                      self.config.backface_culling, t.p0, t.dp, t.l0, t.dl, t.p0_32, t.dp_32,
                      t.l0_32, t.dl_32, t.t_span, t.bounds, t.facing, t.flags, t.edge_h,
-                     t.edge_gamma, t.ref, t.edge_eps, status, ops, events)
+                     t.edge_gamma, t.ref, t.edge_eps, t.plane_n, t.plane_d, self.draw.depth_w is not None,
+                     status, ops, events)
         self.last_status = status
         return ids[status == ST_OK], ops, events

@@ -1,0 +1,1 @@
+"""Benchmarks of pipeline-sim (run with ``python -m benchmarks.run``; see run.py)."""

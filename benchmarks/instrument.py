@@ -1,0 +1,184 @@
+"""Running a pass with and without SimPy, and timing the units inside it.
+
+Nothing here edits the project: ``run_pass`` looks up ``simulate``, the unit
+classes and ``make_samples`` at call time, so the context managers below
+swap them for the duration of one call and restore them afterwards.
+
+* ``recording()``: the real SimPy ``simulate``, with every stage step wrapped
+  to record the order in which the stages ran and what each step returned
+  (number of output batches, cycles).
+* ``direct(order)``: no SimPy at all. The same step functions (unit run +
+  counters + cost model, exactly as ``run_pass`` builds them) are called in a
+  plain Python loop with a FIFO per stage: either replaying the recorded stage
+  order (so every unit sees the same batches in the same order *and* the same
+  interleaving of z-cull tests and ROP refreshes as under SimPy) or, with
+  ``order=None``, depth-first (each triangle batch all the way to the ROP
+  before the next).
+* ``simpy_only(script)``: the SimPy layer alone: ``pipeline.simulate`` with
+  steps that do no work and return the recorded output counts and cycles.
+* ``unit_timers()``: wall time of every unit's ``run``, the sample tester's
+  numba kernel, sample generation and the resolve.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections import defaultdict, deque
+
+import pandas as pd
+
+import pipeline_sim.render as render
+import units.sample_tester as sample_tester_mod
+from pipeline_sim import pipeline
+from pipeline_sim.pipeline import Stage, TimingResult
+from units.rop import Rop
+from units.sample_tester import SampleTester
+from units.shading_cache import Shading
+from units.tile_test import TileTest
+from units.tile_traverser import TileTraverser
+from units.triangle_setup import TriangleSetup
+from units.zcull import ZCull
+
+UNIT_CLASSES = {
+    "triangle_setup": TriangleSetup, "tile_traverser": TileTraverser, "tile_test": TileTest,
+    "zcull": ZCull, "sample_tester": SampleTester, "shading": Shading, "rop": Rop,
+}
+_REAL_SIMULATE = pipeline.simulate
+
+
+@contextlib.contextmanager
+def patched(obj, name, value):
+    old = getattr(obj, name)
+    setattr(obj, name, value)
+    try:
+        yield
+    finally:
+        setattr(obj, name, old)
+
+
+class Script:
+    """What one SimPy run did: the stage order of every step call and its results."""
+
+    def __init__(self):
+        self.order: list[int] = []
+        self.returns: dict[int, list[tuple[int, float]]] = defaultdict(list)
+        self.stages: list[tuple[str, int]] = []
+        self.n_source = 0
+        self.queue_depth = 0
+        self.frame_cycles = 0.0
+
+
+@contextlib.contextmanager
+def recording(script: Script):
+    def simulate(stages, source_batches, queue_depth):
+        script.stages = [(s.name, s.latency) for s in stages]
+        script.n_source = len(source_batches)
+        script.queue_depth = queue_depth
+        for i, s in enumerate(stages):
+            def step(batch, _f=s.step, _i=i):
+                script.order.append(_i)
+                outs, cycles = _f(batch)
+                script.returns[_i].append((len(outs), cycles))
+                return outs, cycles
+            s.step = step
+        res = _REAL_SIMULATE(stages, source_batches, queue_depth)
+        script.frame_cycles = res.frame_cycles
+        return res
+
+    with patched(render, "simulate", simulate):
+        yield
+
+
+def _empty_timing() -> TimingResult:
+    units = pd.DataFrame(columns=["unit", "busy", "starved", "blocked", "batches", "utilization"])
+    queues = pd.DataFrame(columns=["channel", "depth", "mean_occupancy", "peak_occupancy"])
+    return TimingResult(0.0, units, queues, {})
+
+
+@contextlib.contextmanager
+def direct(order: list[int] | None):
+    """Replace SimPy by a plain loop (replaying ``order``, or depth-first if None)."""
+
+    def simulate(stages, source_batches, queue_depth):
+        n = len(stages)
+        steps = [s.step for s in stages]
+        if order is None:
+            def push(i, batch):
+                outs, _ = steps[i](batch)
+                if i + 1 < n:
+                    for o in outs:
+                        push(i + 1, o)
+            for b in source_batches:
+                push(0, b)
+        else:
+            queues = [deque() for _ in range(n)]
+            queues[0].extend(source_batches)
+            last = n - 1
+            for i in order:
+                outs, _ = steps[i](queues[i].popleft())
+                if i < last:
+                    queues[i + 1].extend(outs)
+        return _empty_timing()
+
+    with patched(render, "simulate", simulate):
+        yield
+
+
+def simpy_only(script: Script) -> tuple[float, float, float]:
+    """Run ``pipeline.simulate`` with do-nothing steps replaying ``script``;
+    (wall seconds, CPU seconds, frame cycles)."""
+    stages = []
+    for i, (name, latency) in enumerate(script.stages):
+        rets = deque(script.returns[i])
+
+        def step(_batch, _rets=rets):
+            n_out, cycles = _rets.popleft()
+            return [0] * n_out, cycles  # any non-None payload (None is the end marker)
+        stages.append(Stage(name, step, latency))
+    src = [0] * script.n_source
+    t0 = time.perf_counter()
+    c0 = time.process_time()
+    res = _REAL_SIMULATE(stages, src, script.queue_depth)
+    return time.perf_counter() - t0, time.process_time() - c0, res.frame_cycles
+
+
+class Timers:
+    """Accumulated wall (perf_counter) and CPU (process_time) seconds and calls per key."""
+
+    def __init__(self):
+        self.seconds: dict[str, float] = defaultdict(float)
+        self.cpu: dict[str, float] = defaultdict(float)
+        self.calls: dict[str, int] = defaultdict(int)
+
+
+def _timed(fn, timers: Timers, key: str):
+    def wrapper(*a, **k):
+        t0 = time.perf_counter()
+        c0 = time.process_time()
+        try:
+            return fn(*a, **k)
+        finally:
+            timers.cpu[key] += time.process_time() - c0
+            timers.seconds[key] += time.perf_counter() - t0
+            timers.calls[key] += 1
+    return wrapper
+
+
+@contextlib.contextmanager
+def unit_timers(timers: Timers):
+    """Time each unit's ``run``, the sample test kernel, make_samples, the resolve and the stage steps."""
+    with contextlib.ExitStack() as stack:
+        for name, cls in UNIT_CLASSES.items():
+            stack.enter_context(patched(cls, "run", _timed(cls.run, timers, name)))
+        stack.enter_context(patched(Rop, "resolve", _timed(Rop.resolve, timers, "resolve")))
+        stack.enter_context(patched(sample_tester_mod, "sample_test_kernel",
+                                    _timed(sample_tester_mod.sample_test_kernel, timers, "sample_test_kernel")))
+        stack.enter_context(patched(render, "make_samples", _timed(render.make_samples, timers, "make_samples")))
+
+        def simulate(stages, source_batches, queue_depth):
+            for s in stages:
+                s.step = _timed(s.step, timers, "step:" + s.name)
+            return _timed(_REAL_SIMULATE, timers, "simulate")(stages, source_batches, queue_depth)
+        stack.enter_context(patched(render, "simulate", simulate))
+        yield

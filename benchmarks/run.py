@@ -1,0 +1,637 @@
+"""pipeline-sim benchmarks: ``python -m benchmarks.run --out bench-results [--quick]``.
+
+Prints a table and writes ``results.json`` (every figure and raw timing, plus
+machine information, package versions and the date), ``results.csv`` (one
+row per headline figure), ``units.csv`` (wall time per unit) and
+``scaling.csv`` (one row per scaling point) into ``--out``. Nothing is
+asserted: the machine is shared and noisy, so each time is the median of a
+few repeats, and the figures worth comparing are the ratios measured in the
+same run. Next to each wall time the process CPU time (``time.process_time``)
+is given too: everything measured is single-threaded, so on an idle machine
+the two agree, and when other jobs compete for the two cores the CPU time is
+the steadier of the two. ``--quick`` (about 1.5 minutes, half of it the cold
+compile) uses fewer repeats and smaller scaling sweeps; the default (about
+4 minutes on an idle 2-core machine) is the full run.
+
+The figures, all for the default workload (workloads/scenes/default.toml)
+unless said otherwise:
+
+0. Frame cycles and STE (sample test efficiency = samples_covered /
+   samples_tested) of the default workload, and the wall time of one pass.
+
+1. Sample tests per second. The pipeline's rate is the counter
+   sample_tester/samples_tested divided by the wall time spent in
+   ``SampleTester.run`` (its calls are wrapped with a timer; the rate of the
+   numba kernel call alone, without the output allocation and copies, is
+   shown too). It is compared with a bare numba micro-kernel
+   (benchmarks/microkernel.py: float32 structure-of-arrays 5D inside test,
+   one moving defocused triangle against 4,096 samples at a time) running
+   the same number of tests in the same process; "gap" is micro / pipeline.
+
+2. Share of wall time spent in the SimPy layer. The same pass runs (a)
+   through ``run_pass`` as is and (b) through ``run_pass`` with SimPy's
+   ``simulate`` replaced by a plain Python loop calling the very same stage
+   steps (unit run + counters + cost model) on the same batches, in the
+   stage order recorded from a SimPy run (so every unit also sees the same
+   interleaving of z-cull tests and ROP refreshes). Share = (pipeline -
+   direct) / pipeline from the medians of alternating repeats. Because that
+   difference is small next to run-to-run noise, the SimPy layer is also
+   timed alone: ``simulate`` driven by do-nothing steps that return the
+   recorded output counts and cycles (it reproduces the frame cycles
+   exactly). Images, depth buffers and counters of (a) and (b) are compared
+   for identity, and also those of a depth-first loop (each triangle batch
+   all the way to the ROP before the next): the image must not change, the
+   counters may, since z-cull then sees ROP refreshes earlier. A per-unit
+   breakdown (wrapped unit ``run`` calls) shows where a pass spends its time.
+
+3. Scaling. Each point runs in a fresh subprocess (benchmarks/child.py):
+   wall time of ``run_pass`` (median of repeats; warm-up and scene building
+   excluded); peak memory as the process's peak resident set size ("peak
+   RSS"), read from VmHWM in /proc/self/status, the per-process high-water
+   mark that ``getrusage(RUSAGE_SELF).ru_maxrss`` is built from. The mark is
+   reset (/proc/self/clear_refs) after imports, warm-up and scene building,
+   so it measures the runs rather than numba's compiler; "RSS growth" is the
+   peak minus the RSS just before the runs. (ru_maxrss itself is recorded in
+   the JSON but not used: after fork + exec Linux starts it at the parent's
+   peak, so every child of this large process would report the parent's
+   size.) Also the peak of tracemalloc-traced allocations during one extra
+   run ("traced peak": Python objects and numpy buffers; arrays allocated
+   inside numba kernels are not seen). Sweeps: triangle count (random small moving defocused
+   triangles made with ``draw_from_clip``, fixed image size and spp), pixel
+   count (the default scene at 80x45 .. 640x360) and spp (the default scene,
+   1 .. 32). The log-log slope of time (and of memory) against the swept
+   quantity is fitted with ``numpy.polyfit``: 1.0 means linear.
+
+4. First-run compile time. ``pipeline_sim.jit.warm_up()`` timed in a fresh
+   subprocess with ``NUMBA_CACHE_DIR`` pointing at an empty temporary folder
+   (cold: every kernel compiles), then in a second fresh subprocess with the
+   same folder (the kernels load from numba's cache).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import datetime as dt
+import hashlib
+import importlib.metadata
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+
+FULL = {
+    "pairs": 7, "instrumented": 3, "simpy_only": 5, "micro_repeats": 7, "scaling_repeats": 5,
+    "tris": {"n": [500, 1000, 2000, 4000, 8000, 16000], "width": 320, "height": 180, "spp": 8},
+    "pixels": {"sizes": [(80, 45), (160, 90), (320, 180), (640, 360)], "spp": 16},
+    "spp": {"spp": [1, 2, 4, 8, 16, 32], "width": 320, "height": 180},
+}
+QUICK = {
+    "pairs": 3, "instrumented": 1, "simpy_only": 3, "micro_repeats": 5, "scaling_repeats": 1,
+    "tris": {"n": [500, 2000, 8000], "width": 160, "height": 90, "spp": 4},
+    "pixels": {"sizes": [(80, 45), (160, 90), (320, 180)], "spp": 4},
+    "spp": {"spp": [1, 4, 16], "width": 160, "height": 90},
+}
+
+
+def log(msg: str) -> None:
+    print(f"  .. {msg}", file=sys.stderr, flush=True)
+
+
+# ---------------------------------------------------------------------------
+# machine and environment
+
+
+def source_digest() -> str:
+    """sha256 over the simulator's sources (they may be edited while the benchmark runs)."""
+    h = hashlib.sha256()
+    for d in ("pipeline_sim", "units"):
+        for p in sorted((ROOT / d).rglob("*.py")):
+            h.update(p.relative_to(ROOT).as_posix().encode())
+            h.update(p.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def machine_info() -> dict:
+    info = {
+        "platform": platform.platform(), "machine": platform.machine(), "python": platform.python_version(),
+        "cpu_count": os.cpu_count(), "cpus_usable": len(os.sched_getaffinity(0)),
+        "load_average_start": os.getloadavg(),
+    }
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                info["cpu_model"] = line.split(":", 1)[1].strip()
+                break
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemTotal"):
+                info["mem_total_gb"] = round(int(line.split()[1]) / 2**20, 1)
+                break
+    except OSError:
+        pass
+    import numba
+    info["numba_num_threads"] = numba.config.NUMBA_NUM_THREADS
+    return info
+
+
+def package_versions() -> dict:
+    out = {}
+    for name in ("pipeline-sim", "numpy", "numba", "llvmlite", "simpy", "pandas", "scipy", "trimesh"):
+        try:
+            out[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    if out["pipeline-sim"] == "not installed":
+        import tomllib
+        out["pipeline-sim"] = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"] + " (source)"
+    return out
+
+
+# ---------------------------------------------------------------------------
+# 0-2: the default workload in this process
+
+
+def _clocks():
+    return time.perf_counter(), time.process_time()
+
+
+def _since(c):
+    return time.perf_counter() - c[0], time.process_time() - c[1]
+
+
+def _share(pipe: list[float], direct: list[float]) -> dict:
+    mp, md = float(np.median(pipe)), float(np.median(direct))
+    return {"medians": (mp - md) / mp, "minima": (min(pipe) - min(direct)) / min(pipe),
+            "pairwise_median": float(np.median([(a - b) / a for a, b in zip(pipe, direct)]))}
+
+
+def bench_default(cfg: dict) -> dict:
+    from benchmarks import instrument as ins
+    from benchmarks import microkernel
+    from benchmarks.workloads import DEFAULT_SCENE, default_pass
+    from pipeline_sim.render import run_pass
+
+    p = default_pass()
+    out: dict = {"scene": str(DEFAULT_SCENE.relative_to(ROOT)), "width": p.draw.width, "height": p.draw.height,
+                 "spp": p.spp, "triangles": p.draw.n}
+
+    # a recording SimPy run: stage order and step results, also warms every path
+    log("default workload: recording run")
+    script = ins.Script()
+    with ins.recording(script):
+        rec = run_pass(p)
+    out["stage_visits"] = len(script.order)
+    out["source_batches"] = script.n_source
+
+    # (a) SimPy pipeline vs (b) direct loop, alternating which goes first
+    log(f"default workload: {cfg['pairs']} pairs of pipeline / direct runs")
+    t = {"pipe": [], "direct": []}
+    c = {"pipe": [], "direct": []}
+    res_pipe = res_direct = None
+    for i in range(cfg["pairs"]):
+        for which in (("pipe", "direct") if i % 2 == 0 else ("direct", "pipe")):
+            ctx = ins.direct(script.order) if which == "direct" else contextlib.nullcontext()
+            with ctx:
+                c0 = _clocks()
+                r = run_pass(p)
+                wall, cpu = _since(c0)
+            t[which].append(wall)
+            c[which].append(cpu)
+            if which == "pipe":
+                res_pipe = r
+            else:
+                res_direct = r
+    with ins.direct(None):
+        res_depth = run_pass(p)
+
+    tested = res_pipe.counter("sample_tester", "samples_tested")
+    covered = res_pipe.counter("sample_tester", "samples_covered")
+    out.update({
+        "frame_cycles": res_pipe.timing.frame_cycles, "samples_tested": tested, "samples_covered": covered,
+        "ste": covered / tested if tested else float("nan"),
+        "recorded_frame_cycles": script.frame_cycles,
+        "pipeline_times_s": t["pipe"], "direct_times_s": t["direct"],
+        "pipeline_cpu_s": c["pipe"], "direct_cpu_s": c["direct"],
+        "pipeline_median_s": float(np.median(t["pipe"])), "direct_median_s": float(np.median(t["direct"])),
+        "pipeline_cpu_median_s": float(np.median(c["pipe"])), "direct_cpu_median_s": float(np.median(c["direct"])),
+        "simpy_share_wall": _share(t["pipe"], t["direct"]),
+        "simpy_share_cpu": _share(c["pipe"], c["direct"]),
+    })
+
+    def same(a, b):
+        return bool(np.array_equal(a.image, b.image) and np.array_equal(a.depth, b.depth))
+
+    def counter_diffs(a, b):
+        m = a.counters.merge(b.counters, on=["unit", "counter"], suffixes=("_a", "_b"))
+        m = m[m.value_a != m.value_b]
+        return [f"{r.unit}/{r.counter}: {r.value_a} vs {r.value_b}" for r in m.itertuples()]
+
+    out["identical_image_direct"] = same(res_pipe, res_direct)
+    out["identical_counters_direct"] = not counter_diffs(res_pipe, res_direct)
+    out["identical_image_depth_first"] = same(res_pipe, res_depth)
+    out["counter_diffs_depth_first"] = counter_diffs(res_pipe, res_depth)
+    out["identical_image_recording"] = same(res_pipe, rec)
+    del rec, res_direct, res_depth, r
+
+    # the SimPy layer alone
+    log("default workload: SimPy layer alone")
+    sw, sc = [], []
+    for _ in range(cfg["simpy_only"]):
+        wall, cpu, frame = ins.simpy_only(script)
+        sw.append(wall)
+        sc.append(cpu)
+        out["simpy_only_frame_cycles"] = frame
+    out["simpy_only_times_s"] = sw
+    out["simpy_only_cpu_s"] = sc
+    out["simpy_only_median_s"] = float(np.median(sw))
+    out["simpy_only_cpu_median_s"] = float(np.median(sc))
+    out["simpy_only_share"] = out["simpy_only_median_s"] / out["pipeline_median_s"]
+    out["simpy_only_share_cpu"] = out["simpy_only_cpu_median_s"] / out["pipeline_cpu_median_s"]
+    out["simpy_us_per_stage_visit"] = 1e6 * out["simpy_only_median_s"] / max(1, len(script.order))
+
+    # per-unit wall time (SimPy pipeline with every unit's run wrapped)
+    log(f"default workload: {cfg['instrumented']} instrumented runs")
+    runs = []
+    for _ in range(cfg["instrumented"]):
+        timers = ins.Timers()
+        with ins.unit_timers(timers):
+            c0 = _clocks()
+            r = run_pass(p)
+            total, total_cpu = _since(c0)
+        runs.append((total, total_cpu, timers))
+    calls = runs[-1][2].calls
+    unit_names = list(ins.UNIT_CLASSES)
+
+    def parts(secs: dict, total: float, simpy: float) -> dict:
+        d = {name: secs.get(name, 0.0) for name in unit_names}
+        d["sample generation"] = secs.get("make_samples", 0.0)
+        d["resolve"] = secs.get("resolve", 0.0)
+        d["counters and cost model in the steps"] = (sum(secs.get("step:" + n, 0.0) for n in unit_names)
+                                                     - sum(secs.get(n, 0.0) for n in unit_names))
+        d["SimPy layer (timed alone)"] = simpy
+        d["other (unit set-up, counters table, ...)"] = total - sum(d.values())
+        return d
+
+    wall_parts = [parts(tm.seconds, tot, out["simpy_only_median_s"]) for tot, _, tm in runs]
+    cpu_parts = [parts(tm.cpu, tot, out["simpy_only_cpu_median_s"]) for _, tot, tm in runs]
+    total = float(np.median([r_[0] for r_ in runs]))
+    total_cpu = float(np.median([r_[1] for r_ in runs]))
+    call_keys = {"sample generation": "make_samples", "resolve": "resolve"}
+    units = []
+    for key in wall_parts[0]:
+        w = float(np.median([d[key] for d in wall_parts]))
+        cp = float(np.median([d[key] for d in cpu_parts]))
+        units.append({"part": key, "seconds": w, "share": w / total, "cpu_seconds": cp, "cpu_share": cp / total_cpu,
+                      "calls": calls.get(call_keys.get(key, key), 0)})
+    out["instrumented_total_s"] = total
+    out["instrumented_total_cpu_s"] = total_cpu
+    out["units"] = units
+
+    # 1. sample tests per second: pipeline vs bare micro-kernel on the same number of tests
+    st_tested = r.counter("sample_tester", "samples_tested")
+
+    def med(key, cpu=False):
+        return float(np.median([(tm.cpu if cpu else tm.seconds)[key] for _, _, tm in runs]))
+
+    out["tester_run_s"] = med("sample_tester")
+    out["tester_kernel_s"] = med("sample_test_kernel")
+    out["tester_run_cpu_s"] = med("sample_tester", True)
+    out["tester_rate"] = st_tested / out["tester_run_s"]
+    out["tester_kernel_rate"] = st_tested / out["tester_kernel_s"]
+    out["tester_rate_cpu"] = st_tested / out["tester_run_cpu_s"]
+    log("micro-kernel")
+    micro = microkernel.measure(st_tested, n_samples=4096, repeats=cfg["micro_repeats"])
+    out["micro"] = micro
+    out["micro_rate"] = micro["tests_per_s"]
+    out["micro_rate_cpu"] = micro["tests_per_cpu_s"]
+    out["micro_over_pipeline"] = micro["tests_per_s"] / out["tester_rate"]
+    out["micro_over_pipeline_kernel"] = micro["tests_per_s"] / out["tester_kernel_rate"]
+    out["micro_over_pipeline_cpu"] = micro["tests_per_cpu_s"] / out["tester_rate_cpu"]
+    return out
+
+
+# ---------------------------------------------------------------------------
+# 3-4: subprocesses
+
+
+def run_child(args: list[str], env: dict | None = None, timeout: float = 600) -> dict:
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "benchmarks.child", *args], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=timeout)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        return {"error": (proc.stderr or proc.stdout).strip().splitlines()[-1:], "process_wall_s": wall}
+    res = json.loads(proc.stdout.strip().splitlines()[-1])
+    res["process_wall_s"] = wall
+    return res
+
+
+def slope(xs, ys) -> float:
+    xs, ys = np.asarray(xs, float), np.asarray(ys, float)
+    ok = (xs > 0) & (ys > 0) & np.isfinite(ys)
+    if ok.sum() < 2:
+        return float("nan")
+    return float(np.polyfit(np.log(xs[ok]), np.log(ys[ok]), 1)[0])
+
+
+def bench_scaling(cfg: dict) -> dict:
+    reps = cfg["scaling_repeats"]
+    sweeps = {"triangles": [], "pixels": [], "spp": []}
+    c = cfg["tris"]
+    for n in c["n"]:
+        sweeps["triangles"].append({"kind": "tris", "n": n, "width": c["width"], "height": c["height"],
+                                    "spp": c["spp"], "repeats": reps})
+    c = cfg["pixels"]
+    for w, h in c["sizes"]:
+        sweeps["pixels"].append({"kind": "scene", "width": w, "height": h, "spp": c["spp"], "repeats": reps})
+    c = cfg["spp"]
+    for s in c["spp"]:
+        sweeps["spp"].append({"kind": "scene", "width": c["width"], "height": c["height"], "spp": s,
+                              "repeats": reps})
+    out = {}
+    for name, specs in sweeps.items():
+        points = []
+        for spec in specs:
+            log(f"scaling {name}: {spec}")
+            res = run_child(["point", json.dumps(spec)])
+            res.update({k: v for k, v in spec.items() if k not in res})
+            res["x"] = {"triangles": res.get("triangles", spec.get("n")),
+                        "pixels": spec["width"] * spec["height"], "spp": spec["spp"]}[name]
+            points.append(res)
+        good = [pt for pt in points if "error" not in pt]
+        xs = [pt["x"] for pt in good]
+        out[name] = {
+            "points": points,
+            "slope_time": slope(xs, [pt["median_s"] for pt in good]),
+            "slope_cpu_time": slope(xs, [pt["cpu_median_s"] for pt in good]),
+            "slope_traced_peak": slope(xs, [pt["traced_peak_mb"] for pt in good]),
+            "slope_rss_growth": slope(xs, [pt["rss_growth_mb"] for pt in good]),
+            "slope_samples_tested": slope(xs, [pt["samples_tested"] for pt in good]),
+            "range": (max(xs) / min(xs)) if xs else float("nan"),
+        }
+    return out
+
+
+def bench_compile() -> dict:
+    tmp = tempfile.mkdtemp(prefix="pipeline-sim-numba-cache-")
+    try:
+        env = dict(os.environ, NUMBA_CACHE_DIR=tmp)
+        log("compile: cold warm_up() in a fresh process (empty NUMBA_CACHE_DIR)")
+        cold = run_child(["compile"], env=env)
+        log("compile: warm_up() again in a fresh process (same cache)")
+        warm = run_child(["compile"], env=env)
+        files = sum(1 for _ in Path(tmp).rglob("*") if _.is_file())
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return {"cold": cold, "cached": warm, "cache_files": files}
+
+
+# ---------------------------------------------------------------------------
+# output
+
+
+def fmt_rate(r: float) -> str:
+    return f"{r / 1e6:,.1f} M/s"
+
+
+def table(rows: list[tuple], headers: tuple) -> str:
+    cells = [tuple(str(c) for c in headers)] + [tuple(str(c) for c in r) for r in rows]
+    widths = [max(len(r[i]) for r in cells) for i in range(len(headers))]
+    lines = []
+    for j, r in enumerate(cells):
+        lines.append("  " + "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))))
+        if j == 0:
+            lines.append("  " + "  ".join("-" * w for w in widths))
+    return "\n".join(lines)
+
+
+def report(results: dict) -> tuple[str, list[dict]]:
+    d = results["default"]
+    rows_csv: list[dict] = []
+
+    def add(section, metric, value, unit="", note=""):
+        rows_csv.append({"section": section, "metric": metric, "value": value, "unit": unit, "note": note})
+
+    m = results["machine"]
+    out = []
+    out.append(f"pipeline-sim benchmarks ({results['mode']}), {results['date']}")
+    out.append(f"machine: {m.get('cpu_model', '?')}, {m['cpus_usable']} CPUs, {m.get('mem_total_gb', '?')} GB, "
+               f"Python {m['python']}, numba {results['packages']['numba']}, numpy {results['packages']['numpy']}, "
+               f"simpy {results['packages']['simpy']}; load average {m['load_average_start'][0]:.2f} at start, "
+               f"{m['load_average_end'][0]:.2f} at end")
+    if results["source_digest_start"] != results["source_digest_end"]:
+        out.append("WARNING: the simulator's sources changed while the benchmark ran; "
+                   "points measured in different processes may not be comparable.")
+    out.append("")
+    out.append(f"Default workload {d['scene']}: {d['width']}x{d['height']}, {d['spp']} spp, {d['triangles']:,} triangles")
+    n = len(d["pipeline_times_s"])
+    rows = [
+        ("frame cycles", f"{d['frame_cycles']:,.0f}", "simulated"),
+        ("STE", f"{100 * d['ste']:.2f} %", f"{d['samples_covered']:,} covered / {d['samples_tested']:,} tested"),
+        ("wall time per pass", f"{d['pipeline_median_s']:.3f} s",
+         f"median of {n}; CPU time {d['pipeline_cpu_median_s']:.3f} s"),
+    ]
+    out.append(table(rows, ("figure", "value", "note")))
+    add("default", "frame_cycles", d["frame_cycles"], "cycles")
+    add("default", "ste", d["ste"], "ratio", "samples_covered / samples_tested")
+    add("default", "samples_tested", d["samples_tested"], "tests")
+    add("default", "wall_time_per_pass", d["pipeline_median_s"], "s", f"median of {n}")
+    add("default", "cpu_time_per_pass", d["pipeline_cpu_median_s"], "s", f"median of {n}")
+
+    out.append("")
+    out.append("1. Sample tests per second (same number of tests, same process; CPU-time rates in brackets)")
+    mic = d["micro"]
+    rows = [
+        ("pipeline SampleTester.run", fmt_rate(d["tester_rate"]), f"({fmt_rate(d['tester_rate_cpu'])})",
+         f"{d['samples_tested']:,} tests in {d['tester_run_s']:.3f} s"),
+        ("pipeline kernel call only", fmt_rate(d["tester_kernel_rate"]), "", f"{d['tester_kernel_s']:.3f} s"),
+        ("bare micro-kernel", fmt_rate(d["micro_rate"]), f"({fmt_rate(d['micro_rate_cpu'])})",
+         f"{mic['tests']:,} tests in {mic['median_s']:.4f} s, {mic['samples_per_triangle']} samples/triangle"),
+        ("gap micro / pipeline", f"{d['micro_over_pipeline']:.1f}x", f"({d['micro_over_pipeline_cpu']:.1f}x)",
+         f"{d['micro_over_pipeline_kernel']:.1f}x against the kernel call alone"),
+    ]
+    out.append(table(rows, ("rate", "tests/s", "CPU", "note")))
+    add("sample_tests", "pipeline_sample_tester_rate", d["tester_rate"], "tests/s", "samples_tested / SampleTester.run wall time")
+    add("sample_tests", "pipeline_sample_tester_rate_cpu", d["tester_rate_cpu"], "tests/s", "samples_tested / SampleTester.run CPU time")
+    add("sample_tests", "pipeline_kernel_rate", d["tester_kernel_rate"], "tests/s", "samples_tested / kernel call wall time")
+    add("sample_tests", "micro_kernel_rate", d["micro_rate"], "tests/s", "bare float32 SoA 5D kernel, one core")
+    add("sample_tests", "micro_kernel_rate_cpu", d["micro_rate_cpu"], "tests/s", "CPU time")
+    add("sample_tests", "micro_over_pipeline", d["micro_over_pipeline"], "ratio", "wall-time rates")
+    add("sample_tests", "micro_over_pipeline_cpu", d["micro_over_pipeline_cpu"], "ratio", "CPU-time rates")
+
+    out.append("")
+    out.append(f"2. SimPy layer share of a pass (target under 10%; {n} alternating pairs, wall and CPU time)")
+    sw, sc = d["simpy_share_wall"], d["simpy_share_cpu"]
+    rows = [
+        ("pipeline (run_pass)", f"{d['pipeline_median_s']:.3f} s", f"{d['pipeline_cpu_median_s']:.3f} s", "median"),
+        ("direct loop, same steps", f"{d['direct_median_s']:.3f} s", f"{d['direct_cpu_median_s']:.3f} s",
+         f"median; {d['stage_visits']} stage visits replayed in SimPy's order"),
+        ("(pipeline - direct) / pipeline", f"{100 * sw['medians']:.1f} %", f"{100 * sc['medians']:.1f} %",
+         f"from medians; from minima {100 * sw['minima']:.1f} % / {100 * sc['minima']:.1f} % (wall / CPU)"),
+        ("SimPy layer timed alone", f"{1e3 * d['simpy_only_median_s']:.1f} ms", f"{1e3 * d['simpy_only_cpu_median_s']:.1f} ms",
+         f"= {100 * d['simpy_only_share']:.2f} % of a pass; {d['simpy_us_per_stage_visit']:.1f} us per stage visit"),
+    ]
+    out.append(table(rows, ("figure", "wall", "CPU", "note")))
+    rows = [
+        ("identical image, direct loop", "yes" if d["identical_image_direct"] else "NO",
+         "counters identical too" if d["identical_counters_direct"] else "counters differ"),
+        ("identical image, depth-first loop", "yes" if d["identical_image_depth_first"] else "NO",
+         f"{len(d['counter_diffs_depth_first'])} counters differ" if d["counter_diffs_depth_first"]
+         else "counters identical too"),
+    ]
+    out.append(table(rows, ("check", "", "note")))
+    if d["counter_diffs_depth_first"]:
+        out.append("  SimPy vs depth-first order, e.g. " + "; ".join(d["counter_diffs_depth_first"][:3]))
+    add("simpy", "pipeline_median", d["pipeline_median_s"], "s")
+    add("simpy", "direct_median", d["direct_median_s"], "s")
+    add("simpy", "share_wall_medians", sw["medians"], "ratio", "(pipeline - direct) / pipeline, wall-time medians")
+    add("simpy", "share_wall_minima", sw["minima"], "ratio", "same, from minima")
+    add("simpy", "share_cpu_medians", sc["medians"], "ratio", "same, CPU-time medians")
+    add("simpy", "share_timed_alone", d["simpy_only_share"], "ratio", "simulate() with do-nothing steps / pipeline")
+    add("simpy", "identical_image_direct", int(d["identical_image_direct"]), "bool")
+    add("simpy", "identical_image_depth_first", int(d["identical_image_depth_first"]), "bool")
+
+    out.append("")
+    out.append(f"   Where a pass goes (instrumented SimPy runs, median of {results['config']['instrumented']}; "
+               f"pass {d['instrumented_total_s']:.3f} s wall, {d['instrumented_total_cpu_s']:.3f} s CPU)")
+    rows = [(u["part"], f"{u['seconds']:.3f} s", f"{100 * u['share']:.1f} %", f"{100 * u['cpu_share']:.1f} %",
+             u["calls"] or "") for u in d["units"]]
+    out.append(table(rows, ("part", "wall", "share", "CPU share", "calls")))
+    out.append("")
+    out.append("3. Scaling (each point in a fresh process; time = median run_pass wall / CPU time; peak RSS = VmHWM,")
+    out.append("   the kernel high-water mark behind ru_maxrss, reset after imports, warm-up and scene building; RSS growth")
+    out.append("   = peak RSS - RSS before the runs; traced peak = tracemalloc peak (Python + numpy buffers) of one run)")
+    sc = results["scaling"]
+    labels = {"triangles": "triangles (random small moving defocused, {w}x{h}, {spp} spp)",
+              "pixels": "pixels (default scene, {spp} spp)", "spp": "spp (default scene, {w}x{h})"}
+    for name, s in sc.items():
+        pts = s["points"]
+        p0 = pts[0]
+        out.append("  " + labels[name].format(w=p0.get("width"), h=p0.get("height"), spp=p0.get("spp")))
+        rows = []
+        for pt in pts:
+            xlab = {"triangles": f"{pt['x']:,}", "pixels": f"{pt['width']}x{pt['height']}", "spp": f"{pt['x']}"}[name]
+            if "error" in pt:
+                rows.append((xlab, "error", "", "", "", "", "", str(pt["error"])[:60]))
+                continue
+            rows.append((xlab, f"{pt['median_s']:.3f} s", f"{pt['cpu_median_s']:.3f} s",
+                         f"{pt['rss_peak_mb']:.0f} MB", f"{pt['rss_growth_mb']:.0f} MB",
+                         f"{pt['traced_peak_mb']:.1f} MB", f"{pt['samples_tested']:,}",
+                         f"{1e9 * pt['median_s'] / max(1, pt['samples_tested']):.0f} ns"))
+            add(f"scaling_{name}", f"time_s@{xlab}", pt["median_s"], "s")
+            add(f"scaling_{name}", f"cpu_s@{xlab}", pt["cpu_median_s"], "s")
+            add(f"scaling_{name}", f"rss_peak_mb@{xlab}", pt["rss_peak_mb"], "MB")
+            add(f"scaling_{name}", f"traced_peak_mb@{xlab}", pt["traced_peak_mb"], "MB")
+        out.append(table(rows, (name, "time", "CPU", "peak RSS", "RSS growth", "traced peak", "samples tested",
+                                "time/test")))
+        out.append(f"  log-log slope over {s['range']:.0f}x: time {s['slope_time']:.2f} (CPU {s['slope_cpu_time']:.2f}), "
+                   f"traced peak {s['slope_traced_peak']:.2f}, RSS growth {s['slope_rss_growth']:.2f}, "
+                   f"samples tested {s['slope_samples_tested']:.2f}")
+        out.append("")
+        add(f"scaling_{name}", "slope_time", s["slope_time"], "log-log")
+        add(f"scaling_{name}", "slope_cpu_time", s["slope_cpu_time"], "log-log")
+        add(f"scaling_{name}", "slope_traced_peak", s["slope_traced_peak"], "log-log")
+        add(f"scaling_{name}", "slope_rss_growth", s["slope_rss_growth"], "log-log")
+        add(f"scaling_{name}", "slope_samples_tested", s["slope_samples_tested"], "log-log")
+
+    cp = results["compile"]
+    out.append("4. First-run compile time of pipeline_sim.jit.warm_up() (fresh processes, temporary NUMBA_CACHE_DIR)")
+    rows = []
+    for key, label in (("cold", "cold (empty cache, compiles)"), ("cached", "second process (cache load)")):
+        r = cp[key]
+        if "error" in r:
+            rows.append((label, "error", str(r["error"])[:60], "", ""))
+        else:
+            rows.append((label, f"{r['warm_up_s']:.2f} s", f"{r['import_s']:.2f} s", f"{r['process_wall_s']:.2f} s",
+                         f"{r['peak_rss_mb']:.0f} MB"))
+            add("compile", f"warm_up_{key}", r["warm_up_s"], "s")
+            add("compile", f"process_wall_{key}", r["process_wall_s"], "s")
+    out.append(table(rows, ("run", "warm_up()", "imports", "whole process", "peak RSS")))
+    if "error" not in cp["cold"] and "error" not in cp["cached"]:
+        out.append(f"  cold / cached warm_up: {cp['cold']['warm_up_s'] / max(1e-9, cp['cached']['warm_up_s']):.0f}x; "
+                   f"{cp['cache_files']} cache files written")
+    out.append("")
+    out.append(f"total benchmark time {results['elapsed_s']:.0f} s")
+    return "\n".join(out), rows_csv
+
+
+def to_jsonable(o):
+    if isinstance(o, dict):
+        return {str(k): to_jsonable(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [to_jsonable(v) for v in o]
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.floating,)):
+        return float(o)
+    if isinstance(o, float) and not np.isfinite(o):
+        return None
+    return o
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.run", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", default="bench-results", help="folder for results.json / *.csv (created)")
+    ap.add_argument("--quick", action="store_true", help="about 1.5 minutes: fewer repeats, smaller sweeps")
+    args = ap.parse_args(argv)
+    cfg = QUICK if args.quick else FULL
+    start = time.perf_counter()
+    outdir = Path(args.out).resolve()
+    os.chdir(ROOT)
+    outdir.mkdir(parents=True, exist_ok=True)
+
+    results: dict = {"mode": "quick" if args.quick else "full",
+                     "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+                     "config": cfg, "source_digest_start": source_digest()}
+    results["machine"] = machine_info()
+    results["packages"] = package_versions()
+
+    # compile (or load) every kernel in this process first, so the cache is
+    # written before any subprocess reads it
+    log("warm-up in this process")
+    from pipeline_sim.jit import warm_up
+    results["parent_warm_up_s"] = warm_up()
+
+    results["default"] = bench_default(cfg)
+    results["scaling"] = bench_scaling(cfg)
+    results["compile"] = bench_compile()
+    results["machine"]["load_average_end"] = os.getloadavg()
+    results["source_digest_end"] = source_digest()
+    results["elapsed_s"] = time.perf_counter() - start
+
+    text, rows = report(results)
+    print(text)
+    (outdir / "results.json").write_text(json.dumps(to_jsonable(results), indent=2))
+    with open(outdir / "results.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=["section", "metric", "value", "unit", "note"])
+        w.writeheader()
+        w.writerows(rows)
+    with open(outdir / "units.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=["part", "seconds", "share", "cpu_seconds", "cpu_share", "calls"])
+        w.writeheader()
+        w.writerows(results["default"]["units"])
+    with open(outdir / "scaling.csv", "w", newline="") as f:
+        fields = ["sweep", "x", "kind", "n", "triangles", "width", "height", "spp", "repeats", "median_s", "cpu_median_s",
+                  "rss_baseline_mb", "peak_reset", "rss_peak_mb", "rss_growth_mb", "traced_peak_mb", "samples_tested",
+                  "samples_covered", "frame_cycles", "process_wall_s", "error"]
+        w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
+        w.writeheader()
+        for name, s in results["scaling"].items():
+            for pt in s["points"]:
+                w.writerow({"sweep": name, **pt})
+    print(f"results written to {outdir}/ (results.json, results.csv, units.csv, scaling.csv)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
