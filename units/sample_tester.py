@@ -44,80 +44,102 @@ def _top_left(a, b):
 
 
 @nb.njit(cache=True, inline="always")
-def _edge(xj, yj, wj, xi, yi, wi, x, y):
-    """n = p_j x p_i and its value at (x, y, 1)."""
-    a = yj * wi - wj * yi
-    b = wj * xi - xj * wi
-    c = xj * yi - yj * xi
-    return a, b, a * x + b * y + c
+def _edges(X0, Y0, W0, X1, Y1, W1, X2, Y2, W2):
+    """Edge k opposite vertex k: n_k = p_j x p_i, (i, j) = (k+1, k+2) mod 3, and
+    the orientation D = p0 . (p2 x p1) (004 eq. 3 at fixed t; Olano and Greer)."""
+    a0 = Y2 * W1 - W2 * Y1
+    b0 = W2 * X1 - X2 * W1
+    c0 = X2 * Y1 - Y2 * X1
+    a1 = Y0 * W2 - W0 * Y2
+    b1 = W0 * X2 - X0 * W2
+    c1 = X0 * Y2 - Y0 * X2
+    a2 = Y1 * W0 - W1 * Y0
+    b2 = W1 * X0 - X1 * W0
+    c2 = X1 * Y0 - Y1 * X0
+    D = X0 * a0 + Y0 * b0 + W0 * c0
+    return a0, b0, c0, a1, b1, c1, a2, b2, c2, D
+
+
+MISS = (False, np.float32(0.0), np.float32(0.0), np.float32(0.0), np.float32(0.0))
 
 
 @nb.njit(cache=True, inline="always")
-def _edge64(xj, yj, wj, xi, yi, wi, x, y):
-    """The same edge in float64 from the same float32 inputs: the products of
-    two float32 values are exact, so the sign is that of exact arithmetic
-    unless the sample lies within about 1e-16 (relative) of the edge."""
-    return _edge(np.float64(xj), np.float64(yj), np.float64(wj), np.float64(xi), np.float64(yi),
-                 np.float64(wi), np.float64(x), np.float64(y))
+def _decide(a0, b0, c0, a1, b1, c1, a2, b2, c2, D, X0, Y0, W0, Z0, X1, Y1, W1, Z1, X2, Y2, W2, Z2,
+            x, y, backface_culling, eps):
+    """Inside decision, barycentrics and depth of one sample at (x, y).
+
+    Edge functions are evaluated in float32; a sample within the float32 error
+    bound ``eps`` of an edge is re-evaluated in float64 from the same float32
+    vertices (products of two float32 are exact), so the decision matches
+    exact arithmetic: shared edges (exactly negated functions) and shared
+    vertices are covered once. Ties follow the top-left rule (003 §3.4).
+    """
+    e0 = np.float64(a0 * x + b0 * y + c0)
+    e1 = np.float64(a1 * x + b1 * y + c1)
+    e2 = np.float64(a2 * x + b2 * y + c2)
+    fa0, fb0, fa1, fb1, fa2, fb2 = (np.float64(a0), np.float64(b0), np.float64(a1), np.float64(b1),
+                                    np.float64(a2), np.float64(b2))
+    if abs(e0) <= eps or abs(e1) <= eps or abs(e2) <= eps:
+        g = _edges(np.float64(X0), np.float64(Y0), np.float64(W0), np.float64(X1), np.float64(Y1),
+                   np.float64(W1), np.float64(X2), np.float64(Y2), np.float64(W2))
+        xd = np.float64(x)
+        yd = np.float64(y)
+        fa0, fb0, fa1, fb1, fa2, fb2 = g[0], g[1], g[3], g[4], g[6], g[7]
+        e0 = g[0] * xd + g[1] * yd + g[2]
+        e1 = g[3] * xd + g[4] * yd + g[5]
+        e2 = g[6] * xd + g[7] * yd + g[8]
+    if D == 0.0 or (backface_culling and D < 0.0):
+        return MISS
+    if D < 0.0:
+        e0, e1, e2 = -e0, -e1, -e2
+        fa0, fa1, fa2 = -fa0, -fa1, -fa2
+        fb0, fb1, fb2 = -fb0, -fb1, -fb2
+    if e0 < 0.0 or e1 < 0.0 or e2 < 0.0:
+        return MISS
+    if ((e0 == 0.0 and not _top_left(fa0, fb0)) or (e1 == 0.0 and not _top_left(fa1, fb1))
+            or (e2 == 0.0 and not _top_left(fa2, fb2))):
+        return MISS
+    tot = e0 + e1 + e2
+    # z/w = sum(e_k Z_k) / sum(e_k W_k) (the denominator is |D| in exact
+    # arithmetic; summing non-negative e_k avoids D's cancellation)
+    den = e0 * W0 + e1 * W1 + e2 * W2
+    if tot == 0.0 or den == 0.0:
+        return MISS
+    z = np.float32((e0 * Z0 + e1 * Z1 + e2 * Z2) / den)
+    if not (z >= -1.0 and z <= 1.0):
+        return MISS
+    inv = 1.0 / tot
+    return True, np.float32(e0 * inv), np.float32(e1 * inv), np.float32(e2 * inv), z
+
+
+@nb.njit(cache=True, inline="always")
+def _at(p0, d, l0, dl, t, u):
+    """A vertex coordinate at time t and lens coordinate u (001 §3.1)."""
+    return p0 + t * d + u * (l0 + t * dl)
 
 
 @nb.njit(cache=True)
 def inside_test(p0, dp, l0, dl, tri, x, y, t, u, v, backface_culling, edge_eps):
     """Exact 5D test of one sample; returns (covered, b0, b1, b2, z_ndc).
 
-    Vertices at (t, u, v) are computed in float32 and taken as exact inputs.
-    Edge functions are evaluated in float32; a sample within the float32
-    error bound ``edge_eps[tri]`` of an edge is re-evaluated in float64, so
-    the decision matches exact arithmetic on the vertex values: shared edges
-    (exactly negated functions) and shared vertices are covered once.
+    Vertices at (t, u, v) are computed in float32 and taken as exact inputs;
+    see ``_decide`` for the decision itself.
     """
-    X0 = p0[tri, 0, 0] + t * dp[tri, 0, 0] + u * (l0[tri, 0, 0] + t * dl[tri, 0, 0])
-    Y0 = p0[tri, 0, 1] + t * dp[tri, 0, 1] + v * (l0[tri, 0, 1] + t * dl[tri, 0, 1])
+    X0 = _at(p0[tri, 0, 0], dp[tri, 0, 0], l0[tri, 0, 0], dl[tri, 0, 0], t, u)
+    Y0 = _at(p0[tri, 0, 1], dp[tri, 0, 1], l0[tri, 0, 1], dl[tri, 0, 1], t, v)
     W0 = p0[tri, 0, 3] + t * dp[tri, 0, 3]
-    X1 = p0[tri, 1, 0] + t * dp[tri, 1, 0] + u * (l0[tri, 1, 0] + t * dl[tri, 1, 0])
-    Y1 = p0[tri, 1, 1] + t * dp[tri, 1, 1] + v * (l0[tri, 1, 1] + t * dl[tri, 1, 1])
-    W1 = p0[tri, 1, 3] + t * dp[tri, 1, 3]
-    X2 = p0[tri, 2, 0] + t * dp[tri, 2, 0] + u * (l0[tri, 2, 0] + t * dl[tri, 2, 0])
-    Y2 = p0[tri, 2, 1] + t * dp[tri, 2, 1] + v * (l0[tri, 2, 1] + t * dl[tri, 2, 1])
-    W2 = p0[tri, 2, 3] + t * dp[tri, 2, 3]
-    # edge k opposite vertex k: n_k = p_j x p_i with (i, j) = (k+1, k+2) mod 3
-    a0, b0, e0 = _edge(X2, Y2, W2, X1, Y1, W1, x, y)
-    a1, b1, e1 = _edge(X0, Y0, W0, X2, Y2, W2, x, y)
-    a2, b2, e2 = _edge(X1, Y1, W1, X0, Y0, W0, x, y)
-    eps = edge_eps[tri]
-    if abs(e0) <= eps or abs(e1) <= eps or abs(e2) <= eps:
-        a0, b0, e0 = _edge64(X2, Y2, W2, X1, Y1, W1, x, y)
-        a1, b1, e1 = _edge64(X0, Y0, W0, X2, Y2, W2, x, y)
-        a2, b2, e2 = _edge64(X1, Y1, W1, X0, Y0, W0, x, y)
-    c0 = X2 * Y1 - Y2 * X1
-    D = X0 * (Y2 * W1 - W2 * Y1) + Y0 * (W2 * X1 - X2 * W1) + W0 * c0  # p0 . (p2 x p1)
-    if D == 0.0 or (backface_culling and D < 0.0):
-        return False, np.float32(0.0), np.float32(0.0), np.float32(0.0), np.float32(0.0)
-    if D < 0.0:
-        e0, e1, e2 = -e0, -e1, -e2
-        a0, a1, a2 = -a0, -a1, -a2
-        b0, b1, b2 = -b0, -b1, -b2
-    if e0 < 0.0 or e1 < 0.0 or e2 < 0.0:
-        return False, np.float32(0.0), np.float32(0.0), np.float32(0.0), np.float32(0.0)
-    if ((e0 == 0.0 and not _top_left(a0, b0)) or (e1 == 0.0 and not _top_left(a1, b1))
-            or (e2 == 0.0 and not _top_left(a2, b2))):
-        return False, np.float32(0.0), np.float32(0.0), np.float32(0.0), np.float32(0.0)
-    tot = e0 + e1 + e2
-    if tot == 0.0:
-        return False, np.float32(0.0), np.float32(0.0), np.float32(0.0), np.float32(0.0)
     Z0 = p0[tri, 0, 2] + t * dp[tri, 0, 2]
+    X1 = _at(p0[tri, 1, 0], dp[tri, 1, 0], l0[tri, 1, 0], dl[tri, 1, 0], t, u)
+    Y1 = _at(p0[tri, 1, 1], dp[tri, 1, 1], l0[tri, 1, 1], dl[tri, 1, 1], t, v)
+    W1 = p0[tri, 1, 3] + t * dp[tri, 1, 3]
     Z1 = p0[tri, 1, 2] + t * dp[tri, 1, 2]
+    X2 = _at(p0[tri, 2, 0], dp[tri, 2, 0], l0[tri, 2, 0], dl[tri, 2, 0], t, u)
+    Y2 = _at(p0[tri, 2, 1], dp[tri, 2, 1], l0[tri, 2, 1], dl[tri, 2, 1], t, v)
+    W2 = p0[tri, 2, 3] + t * dp[tri, 2, 3]
     Z2 = p0[tri, 2, 2] + t * dp[tri, 2, 2]
-    # z/w = sum(e_k Z_k) / sum(e_k W_k) (the denominator is |D| in exact
-    # arithmetic; summing non-negative e_k avoids D's cancellation)
-    den = e0 * W0 + e1 * W1 + e2 * W2
-    if den == 0.0:
-        return False, np.float32(0.0), np.float32(0.0), np.float32(0.0), np.float32(0.0)
-    z = np.float32((e0 * Z0 + e1 * Z1 + e2 * Z2) / den)
-    if not (z >= -1.0 and z <= 1.0):
-        return False, np.float32(0.0), np.float32(0.0), np.float32(0.0), np.float32(0.0)
-    inv = 1.0 / tot
-    return True, np.float32(e0 * inv), np.float32(e1 * inv), np.float32(e2 * inv), z
+    a0, b0, c0, a1, b1, c1, a2, b2, c2, D = _edges(X0, Y0, W0, X1, Y1, W1, X2, Y2, W2)
+    return _decide(a0, b0, c0, a1, b1, c1, a2, b2, c2, D, X0, Y0, W0, Z0, X1, Y1, W1, Z1, X2, Y2, W2, Z2,
+                   x, y, backface_culling, edge_eps[tri])
 
 
 @nb.njit(cache=True)
@@ -125,8 +147,19 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
                        tile_size, width, height, spp, sx, sy, su, sv, st,
                        p0, dp, l0, dl, edge_eps, backface_culling,
                        out_tri, out_pix, out_sidx, out_z, out_b0, out_b1, out_b2, out_noread, ops, events):
-    """Range lookup on t-ordered samples and exact 5D inside tests (002 §5; 004 eq. 3, 10-13)."""
+    """Range lookup on t-ordered samples and exact inside tests (002 §5; 004 eq. 3, 10-13).
+
+    Specialized per triangle: a static, pinhole triangle gets its edge
+    functions once per tile (a 2D test per sample); a moving or defocused one
+    recomputes its vertices at each sample's (t, u, v). Both paths compute
+    bit-identical vertex values, so neighbours on different paths stay
+    watertight.
+    """
     n = 0
+    tested = 0
+    in_range = 0
+    pixels = 0
+    searches = 0
     for i in range(tri_ids.shape[0]):
         tri = tri_ids[i]
         ta = t_lo[i]
@@ -137,53 +170,102 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
         vb = v_hi[i]
         za = np.float32(z_lo[i])
         zb = np.float32(z_hi[i])
+        eps = edge_eps[tri]
+        # the triangle's constants, loaded once per tile
+        X00, X01, X02 = p0[tri, 0, 0], p0[tri, 1, 0], p0[tri, 2, 0]
+        Y00, Y01, Y02 = p0[tri, 0, 1], p0[tri, 1, 1], p0[tri, 2, 1]
+        Z00, Z01, Z02 = p0[tri, 0, 2], p0[tri, 1, 2], p0[tri, 2, 2]
+        W00, W01, W02 = p0[tri, 0, 3], p0[tri, 1, 3], p0[tri, 2, 3]
+        dX0, dX1, dX2 = dp[tri, 0, 0], dp[tri, 1, 0], dp[tri, 2, 0]
+        dY0, dY1, dY2 = dp[tri, 0, 1], dp[tri, 1, 1], dp[tri, 2, 1]
+        dZ0, dZ1, dZ2 = dp[tri, 0, 2], dp[tri, 1, 2], dp[tri, 2, 2]
+        dW0, dW1, dW2 = dp[tri, 0, 3], dp[tri, 1, 3], dp[tri, 2, 3]
+        LX0, LX1, LX2 = l0[tri, 0, 0], l0[tri, 1, 0], l0[tri, 2, 0]
+        LY0, LY1, LY2 = l0[tri, 0, 1], l0[tri, 1, 1], l0[tri, 2, 1]
+        dLX0, dLX1, dLX2 = dl[tri, 0, 0], dl[tri, 1, 0], dl[tri, 2, 0]
+        dLY0, dLY1, dLY2 = dl[tri, 0, 1], dl[tri, 1, 1], dl[tri, 2, 1]
+        moving = (dX0 != 0 or dX1 != 0 or dX2 != 0 or dY0 != 0 or dY1 != 0 or dY2 != 0 or dZ0 != 0
+                  or dZ1 != 0 or dZ2 != 0 or dW0 != 0 or dW1 != 0 or dW2 != 0 or dLX0 != 0 or dLX1 != 0
+                  or dLX2 != 0 or dLY0 != 0 or dLY1 != 0 or dLY2 != 0)
+        lens = LX0 != 0 or LX1 != 0 or LX2 != 0 or LY0 != 0 or LY1 != 0 or LY2 != 0 or moving
+        # 2D path: vertices and edges once per tile (t, u, v do not matter)
+        X0, Y0, W0, Z0 = X00, Y00, W00, Z00
+        X1, Y1, W1, Z1 = X01, Y01, W01, Z01
+        X2, Y2, W2, Z2 = X02, Y02, W02, Z02
+        a0, b0, c0, a1, b1, c1, a2, b2, c2, D = _edges(X0, Y0, W0, X1, Y1, W1, X2, Y2, W2)
+        full_t = ta <= 0.0 and tb >= 1.0
         for py in range(tile_y[i] * tile_size, min((tile_y[i] + 1) * tile_size, height)):
             for px in range(tile_x[i] * tile_size, min((tile_x[i] + 1) * tile_size, width)):
                 base = (py * width + px) * spp
-                events[EV_PIXELS] += 1
-                # binary searches for the first t >= ta and the first t > tb
-                lo = 0
-                hi = spp
-                while lo < hi:
-                    mid = (lo + hi) >> 1
-                    if st[base + mid] < ta:
-                        lo = mid + 1
-                    else:
-                        hi = mid
-                first = lo
-                hi = spp
-                while lo < hi:
-                    mid = (lo + hi) >> 1
-                    if st[base + mid] <= tb:
-                        lo = mid + 1
-                    else:
-                        hi = mid
-                last = lo
-                ops[OP_CMP] += 2 * (1 + int(np.log2(spp + 1)))
-                events[EV_INRANGE] += last - first
+                pixels += 1
+                first = 0
+                last = spp
+                if not full_t:
+                    searches += 1
+                    lo = 0
+                    hi = spp
+                    while lo < hi:  # first t >= ta
+                        mid = (lo + hi) >> 1
+                        if st[base + mid] < ta:
+                            lo = mid + 1
+                        else:
+                            hi = mid
+                    first = lo
+                    hi = spp
+                    while lo < hi:  # first t > tb
+                        mid = (lo + hi) >> 1
+                        if st[base + mid] <= tb:
+                            lo = mid + 1
+                        else:
+                            hi = mid
+                    last = lo
+                in_range += last - first
+                fx = np.float32(px)
+                fy = np.float32(py)
                 for s in range(first, last):
                     k = base + s
                     u = su[k]
                     v = sv[k]
                     if u < ua or u > ub or v < va or v > vb:
                         continue
-                    events[EV_TESTED] += 1
-                    ok, b0, b1, b2, z = inside_test(p0, dp, l0, dl, tri, np.float32(px + sx[k]),
-                                                     np.float32(py + sy[k]), st[k], u, v, backface_culling,
-                                                     edge_eps)
+                    tested += 1
+                    if lens:
+                        t = st[k]
+                        X0 = _at(X00, dX0, LX0, dLX0, t, u)
+                        Y0 = _at(Y00, dY0, LY0, dLY0, t, v)
+                        W0 = W00 + t * dW0
+                        Z0 = Z00 + t * dZ0
+                        X1 = _at(X01, dX1, LX1, dLX1, t, u)
+                        Y1 = _at(Y01, dY1, LY1, dLY1, t, v)
+                        W1 = W01 + t * dW1
+                        Z1 = Z01 + t * dZ1
+                        X2 = _at(X02, dX2, LX2, dLX2, t, u)
+                        Y2 = _at(Y02, dY2, LY2, dLY2, t, v)
+                        W2 = W02 + t * dW2
+                        Z2 = Z02 + t * dZ2
+                        a0, b0, c0, a1, b1, c1, a2, b2, c2, D = _edges(X0, Y0, W0, X1, Y1, W1, X2, Y2, W2)
+                    ok, r0, r1, r2, z = _decide(a0, b0, c0, a1, b1, c1, a2, b2, c2, D, X0, Y0, W0, Z0, X1, Y1,
+                                                W1, Z1, X2, Y2, W2, Z2, fx + sx[k], fy + sy[k],
+                                                backface_culling, eps)
                     if ok:
                         # the true depth lies in z^; clamping removes float32 rounding
                         # so z-cull decisions made on z^ agree with the ROP's
-                        z = min(max(z, za), zb)
                         out_tri[n] = tri
                         out_pix[n] = py * width + px
                         out_sidx[n] = s
-                        out_z[n] = z
-                        out_b0[n] = b0
-                        out_b1[n] = b1
-                        out_b2[n] = b2
+                        out_z[n] = min(max(z, za), zb)
+                        out_b0[n] = r0
+                        out_b1[n] = r1
+                        out_b2[n] = r2
                         out_noread[n] = noread_in[i]
                         n += 1
+    log_spp = 1
+    while (1 << log_spp) <= spp:
+        log_spp += 1
+    ops[OP_CMP] += 2 * searches * log_spp
+    events[EV_TESTED] += tested
+    events[EV_INRANGE] += in_range
+    events[EV_PIXELS] += pixels
     events[EV_COVERED] += n
     return n
 
