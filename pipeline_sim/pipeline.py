@@ -41,14 +41,18 @@ class Channel:
     _level: int = 0
     integral: float = 0.0
     peak: int = 0
+    series: list[tuple[float, int]] = field(default_factory=list)  # (time, level) after each change
 
     def record(self, now: float) -> None:
         """Note the level after a put or get at ``now``; the previous level held until then."""
         if now > self._last:
             self.integral += self._level * (now - self._last)
             self._last = now
-        self._level = len(self.store.items)
-        self.peak = max(self.peak, self._level)
+        level = len(self.store.items)
+        if level != self._level or not self.series:
+            self.series.append((now, level))
+        self._level = level
+        self.peak = max(self.peak, level)
 
 
 @dataclass
@@ -123,7 +127,8 @@ class TimingResult:
     frame_cycles: float
     units: pd.DataFrame  # unit, busy, starved, blocked, batches, utilization
     queues: pd.DataFrame  # channel, depth, mean_occupancy, peak_occupancy
-    traces: dict[str, list[tuple[float, float, str]]]
+    traces: dict[str, list[tuple[float, float, str]]]  # per unit: (start, end, busy|starved|blocked)
+    queue_series: dict[str, list[tuple[float, int]]]  # per channel: (time, occupancy) at each change
 
 
 def simulate(stages: list[Stage], source_batches: list[Any], queue_depth: int) -> TimingResult:
@@ -158,7 +163,8 @@ def simulate(stages: list[Stage], source_batches: list[Any], queue_depth: int) -
             for c in channels
         ]
     )
-    return TimingResult(frame, units, queues, {s.name: s.trace for s in stages})
+    return TimingResult(frame, units, queues, {s.name: s.trace for s in stages},
+                        {c.name: c.series for c in channels})
 
 
 def cycles_for(work: float, throughput: float, instances: int) -> float:
