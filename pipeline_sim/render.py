@@ -108,7 +108,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     setup = TriangleSetup(arch.triangle_setup, draw, ts)
     traverser = TileTraverser(arch.tile_traverser, setup.table, ts, draw.width, draw.height)
     tile_test = TileTest(arch.tile_test, setup.table, ts, draw.width, draw.height, draw.depth_w)
-    zcull = ZCull(arch.zcull, arch.rop.depth_test, ts, draw.width, draw.height, p.clear_depth)
+    zcull = ZCull(arch.zcull, arch.rop.depth_test, ts, draw.width, draw.height, p.clear_depth, motion, lens)
     if conservative:
         zcull.active = False
     tester = SampleTester(arch.sample_tester, setup.table, samples, ts, arch.triangle_setup.backface_culling)
@@ -176,8 +176,9 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         c.add_ops(ops), c.add_events(ev), count_records(c, n, n)
         c.add("bytes_written", n * 16)
         cfg = arch.shading
-        cyc = max(cycles_for(ev[0], cfg.throughput, cfg.instances),
-                  cycles_for(ev[4] * cfg.shader_cycles, float(cfg.cores), 1))
+        cyc = cycles_for(ev[4] * cfg.shader_cycles, float(cfg.cores), 1)
+        if shading.cached:  # per-sample and conservative shading bypass the cache
+            cyc = max(cyc, cycles_for(ev[0], cfg.throughput, cfg.instances))
         return [out], cyc
 
     def step_rop(batch):

@@ -124,14 +124,16 @@ class ZCull:
     name = "zcull"
     events = EVENTS
 
-    def __init__(self, config, depth_func: str, tile_size: int, width: int, height: int, clear_depth: float):
+    def __init__(self, config, depth_func: str, tile_size: int, width: int, height: int, clear_depth: float,
+                 motion: bool = True, lens: bool = True):
         self.config = config
         self.tile_size = tile_size
         self.width = width
         self.tiles_x = (width + tile_size - 1) // tile_size
         self.tiles_y = (height + tile_size - 1) // tile_size
-        self.nt = config.time_slices
-        self.nl = config.lens_boxes
+        # a dimension the draw does not use gets one box: no storage, no lookups
+        self.nt = config.time_slices if motion else 1
+        self.nl = config.lens_boxes if lens else 1
         nbox = self.nt * self.nl * self.nl
         ntiles = self.tiles_x * self.tiles_y
         self.zmax = np.full((ntiles, nbox), clear_depth, np.float32)
