@@ -20,6 +20,10 @@ DEFAULT_ARCH_PATH = Path(__file__).with_name("data") / "default_arch.toml"
 
 DEPTH_FUNCS = ("less", "lequal", "greater", "gequal", "equal", "always", "never")
 BLEND_MODES = ("replace", "add", "min", "max")
+# bbox: every tile of the moving, defocused bounds and every sample of the
+# triangle's time span (the baseline of 001 and 002); hierarchical: the tile
+# tests of 002 §4 (moving box, optionally linearized edges) and lens bounds
+TILE_TEST_ALGORITHMS = ("hierarchical", "bbox")
 
 
 @dataclass
@@ -83,11 +87,13 @@ class TileTestConfig(UnitTiming):
     throughput: float = 1.0
     latency: int = 12
     instances: int = 2
+    algorithm: str = "hierarchical"
     edge_test: bool = True
     lens_bounds: bool = True
 
     def validate(self, where: str) -> None:
         super().validate(where)
+        _choice(where, "algorithm", self.algorithm, TILE_TEST_ALGORITHMS)
 
 
 @dataclass

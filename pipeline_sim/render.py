@@ -106,7 +106,8 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
                            pattern=p.sample_pattern, table=p.sample_table)
 
     setup = TriangleSetup(arch.triangle_setup, draw, ts)
-    traverser = TileTraverser(arch.tile_traverser, setup.table, ts, draw.width, draw.height)
+    traverser = TileTraverser(arch.tile_traverser, setup.table, ts, draw.width, draw.height,
+                              coarse_test=arch.tile_test.algorithm != "bbox")
     tile_test = TileTest(arch.tile_test, setup.table, ts, draw.width, draw.height, draw.depth_w)
     zcull = ZCull(arch.zcull, arch.rop.depth_test, ts, draw.width, draw.height, p.clear_depth, motion, lens)
     if conservative:

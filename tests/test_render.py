@@ -209,3 +209,21 @@ def test_later_pass_samples_earlier_pass_as_texture(root):
         texture="first", sample_pattern="table", sample_table=CENTRE)
     out = run_passes([first, second])
     np.testing.assert_allclose(out["second"].image, out["first"].image, atol=1e-6)
+
+
+@pytest.mark.parametrize("scene_name", ["default", "motion", "defocus", "camera_motion"])
+def test_tile_tests_change_cost_never_the_image(root, scene_name):
+    """BBOX (every sample in the bounds) against the hierarchical tile tests:
+    the same covered samples (identical images), far fewer samples tested."""
+    scene = load_scene(root / f"workloads/scenes/{scene_name}.toml")
+    scene = scene.replace(image=dataclasses.replace(scene.image, width=96, height=54, spp=8))
+    out = {}
+    for alg in ("bbox", "hierarchical"):
+        out[alg] = run_pass(scene_pass(scene, load_arch(overrides=[f"tile_test.algorithm='{alg}'"])))
+    np.testing.assert_array_equal(out["bbox"].image, out["hierarchical"].image)
+    assert out["bbox"].counter("sample_tester", "samples_covered") >= out["hierarchical"].counter(
+        "sample_tester", "samples_covered")  # z-cull may differ with timing; coverage of the image may not
+    assert out["hierarchical"].counter("sample_tester", "samples_tested") < out["bbox"].counter(
+        "sample_tester", "samples_tested")
+    if scene_name in ("default", "motion"):  # time bounds pay off most under motion
+        assert out["hierarchical"].ste > 1.8 * out["bbox"].ste

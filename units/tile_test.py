@@ -17,7 +17,9 @@ Implements PIPELINE.md §2.3:
   triangle is a convex combination of vertex depths while w > 0.
 
 Every bound is widened by a small margin so floating-point rounding can only
-make it looser, never tighter.
+make it looser, never tighter. With ``algorithm = "bbox"`` no tile is
+rejected and t^ is the triangle's whole time span: the BBOX baseline of 001
+and 002, against which the sample test efficiency of the tests is measured.
 """
 
 from __future__ import annotations
@@ -237,7 +239,7 @@ def plane_w_bounds(plane_n, plane_d, tri, x0, x1, y0, y1, ta, tb, ops):
 
 
 @nb.njit(cache=True)
-def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, edge_test, lens_bounds,
+def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, bbox, edge_test, lens_bounds,
                      p0, dp, l0, dl, t_span, flags, edge_h, edge_gamma, plane_n, plane_d, depth_c1, depth_c0,
                      out_keep, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, ops, events):
     """Test each (triangle, tile) record; fill its intervals and ``out_keep``.
@@ -253,19 +255,22 @@ def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, edge_tes
         y1 = min((tile_y[i] + 1) * tile_size, height) + MARGIN_PX
         ta = t_span[tri, 0]
         tb = t_span[tri, 1]
-        lo, hi = box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ta, tb, ops)
+        if bbox:  # no tile test: every sample of the time span, every lens position
+            lo, hi = ta, tb
+        else:
+            lo, hi = box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ta, tb, ops)
         out_keep[i] = False
         if lo > hi:
             events[EV_REJ_BOX] += 1
             continue
-        if edge_test and (fl & FLAG_EDGE) != 0:
+        if edge_test and not bbox and (fl & FLAG_EDGE) != 0:
             lo, hi = _edge_time_interval(edge_h, edge_gamma, tri, x0, x1, y0, y1, lo, hi, ops)
             if lo > hi:
                 events[EV_REJ_EDGE] += 1
                 continue
         # a triangle without lens shift is seen alike from every lens position
         ulo, uhi, vlo, vhi = -1.0, 1.0, -1.0, 1.0
-        if lens_bounds and (fl & FLAG_LENS) != 0 and (fl & FLAG_WPOS) != 0:
+        if lens_bounds and not bbox and (fl & FLAG_LENS) != 0 and (fl & FLAG_WPOS) != 0:
             ulo, uhi = _lens_interval(p0, dp, l0, dl, tri, 0, x0, x1, lo, hi, ops)
             if ulo > uhi:
                 events[EV_REJ_LENS] += 1
@@ -333,7 +338,8 @@ class TileTest:
         events = np.zeros(len(EVENTS), np.int64)
         t = self.table
         tile_test_kernel(tiles["tri"], tiles["tx"], tiles["ty"], self.tile_size, self.width, self.height,
-                         self.config.edge_test, self.config.lens_bounds, t.p0, t.dp, t.l0, t.dl,
+                         self.config.algorithm == "bbox", self.config.edge_test, self.config.lens_bounds,
+                         t.p0, t.dp, t.l0, t.dl,
                          t.t_span, t.flags, t.edge_h, t.edge_gamma, t.plane_n, t.plane_d, self.depth_c1,
                          self.depth_c0, keep,
                          iv["t_lo"], iv["t_hi"], iv["u_lo"], iv["u_hi"], iv["v_lo"], iv["v_hi"],

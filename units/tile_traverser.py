@@ -21,7 +21,7 @@ EV_COARSE, EV_COARSE_REJ, EV_EMIT = range(len(EVENTS))
 
 
 @nb.njit(cache=True)
-def traverse_kernel(ids, bounds, t_span, p0, dp, l0, dl, tile_size, coarse_factor, width, height,
+def traverse_kernel(ids, bounds, t_span, p0, dp, l0, dl, tile_size, coarse_factor, coarse_test, width, height,
                     out_tri, out_tx, out_ty, ops, events):
     """Emit (triangle, tile) records for ``ids``; returns the number written.
 
@@ -39,7 +39,7 @@ def traverse_kernel(ids, bounds, t_span, p0, dp, l0, dl, tile_size, coarse_facto
         tb = t_span[tri, 1]
         for cy in range(by0 // ctile, (by1 - 1) // ctile + 1):
             for cx in range(bx0 // ctile, (bx1 - 1) // ctile + 1):
-                if coarse_factor > 1:
+                if coarse_factor > 1 and coarse_test:
                     events[EV_COARSE] += 1
                     x0 = cx * ctile - MARGIN_PX
                     x1 = min((cx + 1) * ctile, width) + MARGIN_PX
@@ -69,8 +69,9 @@ class TileTraverser:
     name = "tile_traverser"
     events = EVENTS
 
-    def __init__(self, config, table, tile_size: int, width: int, height: int):
+    def __init__(self, config, table, tile_size: int, width: int, height: int, coarse_test: bool = True):
         self.config = config
+        self.coarse_test = coarse_test  # off for the BBOX baseline
         self.table = table
         self.tile_size = tile_size
         self.width = width
@@ -88,5 +89,5 @@ class TileTraverser:
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
         n = traverse_kernel(ids, t.bounds, t.t_span, t.p0, t.dp, t.l0, t.dl, ts, self.config.coarse_factor,
-                            self.width, self.height, out_tri, out_tx, out_ty, ops, events)
+                            self.coarse_test, self.width, self.height, out_tri, out_tx, out_ty, ops, events)
         return {"tri": out_tri[:n], "tx": out_tx[:n], "ty": out_ty[:n]}, ops, events
