@@ -142,35 +142,149 @@ def inside_test(p0, dp, l0, dl, tri, x, y, t, u, v, backface_culling, edge_eps):
                    x, y, backface_culling, edge_eps[tri])
 
 
+@nb.njit(cache=True, inline="always")
+def _f32_at_least(a):
+    """The smallest float32 >= a: for float32 t, t >= a exactly when t >= this."""
+    f = np.float32(a)
+    if f < a:
+        f = np.nextafter(f, np.float32(np.inf))
+    return f
+
+
+@nb.njit(cache=True, inline="always")
+def _f32_at_most(a):
+    """The largest float32 <= a."""
+    f = np.float32(a)
+    if f > a:
+        f = np.nextafter(f, np.float32(-np.inf))
+    return f
+
+
+@nb.njit(cache=True, inline="always")
+def _mark(j0, j1, general, rt, ru, rv, rx, ry, colf, cand, fpx0, fy, iv, neps, tc):
+    """Pass 1 over samples [j0, j1) of a tile row: interval test and float32
+    edge functions, branch-free. Marks as candidates the samples in the
+    intervals that no edge excludes by more than the float32 error bound.
+    ``iv`` holds (t_lo, t_hi, u_lo, u_hi, v_lo, v_hi) and ``tc`` the
+    triangle's constants (see ``_pack``). Returns (in the intervals, in t^,
+    candidates) as int32 counts."""
+    ta, tb, ua, ub, va, vb = iv[0], iv[1], iv[2], iv[3], iv[4], iv[5]
+    X00, X01, X02, Y00, Y01, Y02, W00, W01, W02 = tc[0], tc[1], tc[2], tc[3], tc[4], tc[5], tc[6], tc[7], tc[8]
+    dX0, dX1, dX2, dY0, dY1, dY2, dW0, dW1, dW2 = (tc[9], tc[10], tc[11], tc[12], tc[13], tc[14], tc[15],
+                                                    tc[16], tc[17])
+    LX0, LX1, LX2, LY0, LY1, LY2 = tc[18], tc[19], tc[20], tc[21], tc[22], tc[23]
+    dLX0, dLX1, dLX2, dLY0, dLY1, dLY2 = tc[24], tc[25], tc[26], tc[27], tc[28], tc[29]
+    sa0, sb0, sc0, sa1, sb1, sc1, sa2, sb2, sc2, ssg = (tc[30], tc[31], tc[32], tc[33], tc[34], tc[35], tc[36],
+                                                        tc[37], tc[38], tc[39])
+    one = np.float32(1.0)
+    n_all = np.int32(0)
+    n_t = np.int32(0)
+    n_c = np.int32(0)
+    # views from j0, looped from 0: no negative-index checks, so the loops vectorize
+    rt = rt[j0:j1]
+    ru = ru[j0:j1]
+    rv = rv[j0:j1]
+    rx = rx[j0:j1]
+    ry = ry[j0:j1]
+    colf = colf[j0:j1]
+    cand = cand[j0:j1]
+    if general:
+        for j in range(j1 - j0):
+            t = rt[j]
+            u = ru[j]
+            v = rv[j]
+            in_t = (t >= ta) & (t <= tb)
+            in_all = in_t & (u >= ua) & (u <= ub) & (v >= va) & (v <= vb)
+            x = (fpx0 + colf[j]) + rx[j]
+            y = fy + ry[j]
+            X0 = _at(X00, dX0, LX0, dLX0, t, u)
+            Y0 = _at(Y00, dY0, LY0, dLY0, t, v)
+            W0 = W00 + t * dW0
+            X1 = _at(X01, dX1, LX1, dLX1, t, u)
+            Y1 = _at(Y01, dY1, LY1, dLY1, t, v)
+            W1 = W01 + t * dW1
+            X2 = _at(X02, dX2, LX2, dLX2, t, u)
+            Y2 = _at(Y02, dY2, LY2, dLY2, t, v)
+            W2 = W02 + t * dW2
+            a0, b0, c0, a1, b1, c1, a2, b2, c2, D = _edges(X0, Y0, W0, X1, Y1, W1, X2, Y2, W2)
+            sg = one if D > 0 else -one
+            e0 = (a0 * x + b0 * y + c0) * sg
+            e1 = (a1 * x + b1 * y + c1) * sg
+            e2 = (a2 * x + b2 * y + c2) * sg
+            m = e0 if e0 < e1 else e1
+            m = m if m < e2 else e2
+            c = in_all & (m >= neps)
+            cand[j] = c
+            n_all += np.int32(in_all)
+            n_t += np.int32(in_t)
+            n_c += np.int32(c)
+    else:
+        for j in range(j1 - j0):
+            t = rt[j]
+            u = ru[j]
+            v = rv[j]
+            in_t = (t >= ta) & (t <= tb)
+            in_all = in_t & (u >= ua) & (u <= ub) & (v >= va) & (v <= vb)
+            x = (fpx0 + colf[j]) + rx[j]
+            y = fy + ry[j]
+            e0 = (sa0 * x + sb0 * y + sc0) * ssg
+            e1 = (sa1 * x + sb1 * y + sc1) * ssg
+            e2 = (sa2 * x + sb2 * y + sc2) * ssg
+            m = e0 if e0 < e1 else e1
+            m = m if m < e2 else e2
+            c = in_all & (m >= neps)
+            cand[j] = c
+            n_all += np.int32(in_all)
+            n_t += np.int32(in_t)
+            n_c += np.int32(c)
+    return n_all, n_t, n_c
+
+
 @nb.njit(cache=True)
 def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, noread_in,
                        tile_size, width, height, spp, sx, sy, su, sv, st,
                        p0, dp, l0, dl, edge_eps, backface_culling,
                        out_tri, out_pix, out_sidx, out_z, out_b0, out_b1, out_b2, out_noread, ops, events):
-    """Range lookup on t-ordered samples and exact inside tests (002 §5; 004 eq. 3, 10-13).
+    """Interval lookup on the tile's samples and exact inside tests (002 §5; 004 eq. 3, 10-13).
 
-    Specialized per triangle: a static, pinhole triangle gets its edge
-    functions once per tile (a 2D test per sample); a moving or defocused one
-    recomputes its vertices at each sample's (t, u, v). Both paths compute
-    bit-identical vertex values, so neighbours on different paths stay
-    watertight.
+    Per tile row, a branch-free first pass over the row's contiguous samples
+    computes the interval test (t in t^, u in u^, v in v^) and the float32
+    edge functions, and keeps as candidates the samples in the intervals that
+    no edge excludes by more than the float32 error bound; numba vectorizes
+    it. The second pass runs the full decision (``_decide``: float64 re-test
+    near edges, top-left ties, depth) on the candidates only. A static,
+    pinhole triangle gets its edge functions once per tile (a 2D test per
+    sample); a moving or defocused one computes its vertices at each sample's
+    (t, u, v). All paths compute bit-identical vertex values, so neighbours on
+    different paths stay watertight. The modelled hardware looks the t-range
+    up with a binary search on the t-ordered samples; its compares are
+    counted as such.
     """
     n = 0
     tested = 0
     in_range = 0
     pixels = 0
     searches = 0
+    row_len = tile_size * spp
+    cand = np.zeros(row_len, np.uint8)
+    colf = np.empty(row_len, np.float32)  # pixel column offset of each sample in a tile row
+    for j in range(row_len):
+        colf[j] = np.float32(j // spp)
+    one = np.float32(1.0)
+    tc = np.empty(40, np.float32)  # the current triangle's constants
+    iv = np.empty(6, np.float32)  # the current tile's intervals
     for i in range(tri_ids.shape[0]):
         tri = tri_ids[i]
-        ta = t_lo[i]
-        tb = t_hi[i]
-        ua = u_lo[i]
-        ub = u_hi[i]
-        va = v_lo[i]
-        vb = v_hi[i]
+        ta = _f32_at_least(t_lo[i])
+        tb = _f32_at_most(t_hi[i])
+        ua = _f32_at_least(u_lo[i])
+        ub = _f32_at_most(u_hi[i])
+        va = _f32_at_least(v_lo[i])
+        vb = _f32_at_most(v_hi[i])
         za = np.float32(z_lo[i])
         zb = np.float32(z_hi[i])
         eps = edge_eps[tri]
+        neps = -eps
         # the triangle's constants, loaded once per tile
         X00, X01, X02 = p0[tri, 0, 0], p0[tri, 1, 0], p0[tri, 2, 0]
         Y00, Y01, Y02 = p0[tri, 0, 1], p0[tri, 1, 1], p0[tri, 2, 1]
@@ -187,78 +301,82 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
         moving = (dX0 != 0 or dX1 != 0 or dX2 != 0 or dY0 != 0 or dY1 != 0 or dY2 != 0 or dZ0 != 0
                   or dZ1 != 0 or dZ2 != 0 or dW0 != 0 or dW1 != 0 or dW2 != 0 or dLX0 != 0 or dLX1 != 0
                   or dLX2 != 0 or dLY0 != 0 or dLY1 != 0 or dLY2 != 0)
-        lens = LX0 != 0 or LX1 != 0 or LX2 != 0 or LY0 != 0 or LY1 != 0 or LY2 != 0 or moving
+        general = LX0 != 0 or LX1 != 0 or LX2 != 0 or LY0 != 0 or LY1 != 0 or LY2 != 0 or moving
         # 2D path: vertices and edges once per tile (t, u, v do not matter)
-        X0, Y0, W0, Z0 = X00, Y00, W00, Z00
-        X1, Y1, W1, Z1 = X01, Y01, W01, Z01
-        X2, Y2, W2, Z2 = X02, Y02, W02, Z02
-        a0, b0, c0, a1, b1, c1, a2, b2, c2, D = _edges(X0, Y0, W0, X1, Y1, W1, X2, Y2, W2)
-        full_t = ta <= 0.0 and tb >= 1.0
+        sa0, sb0, sc0, sa1, sb1, sc1, sa2, sb2, sc2, sD = _edges(X00, Y00, W00, X01, Y01, W01, X02, Y02, W02)
+        for c_, val in enumerate((X00, X01, X02, Y00, Y01, Y02, W00, W01, W02, dX0, dX1, dX2, dY0, dY1, dY2,
+                                  dW0, dW1, dW2, LX0, LX1, LX2, LY0, LY1, LY2, dLX0, dLX1, dLX2, dLY0, dLY1,
+                                  dLY2, sa0, sb0, sc0, sa1, sb1, sc1, sa2, sb2, sc2)):
+            tc[c_] = val
+        tc[39] = one if sD > 0 else -one
+        iv[0], iv[1], iv[2], iv[3], iv[4], iv[5] = ta, tb, ua, ub, va, vb
+        full_t = t_lo[i] <= 0.0 and t_hi[i] >= 1.0
+        px0 = tile_x[i] * tile_size
+        px1 = min(px0 + tile_size, width)
+        fpx0 = np.float32(px0)
+        length = (px1 - px0) * spp
         for py in range(tile_y[i] * tile_size, min((tile_y[i] + 1) * tile_size, height)):
-            for px in range(tile_x[i] * tile_size, min((tile_x[i] + 1) * tile_size, width)):
-                base = (py * width + px) * spp
-                pixels += 1
-                first = 0
-                last = spp
-                if not full_t:
-                    searches += 1
-                    lo = 0
-                    hi = spp
-                    while lo < hi:  # first t >= ta
-                        mid = (lo + hi) >> 1
-                        if st[base + mid] < ta:
-                            lo = mid + 1
-                        else:
-                            hi = mid
-                    first = lo
-                    hi = spp
-                    while lo < hi:  # first t > tb
-                        mid = (lo + hi) >> 1
-                        if st[base + mid] <= tb:
-                            lo = mid + 1
-                        else:
-                            hi = mid
-                    last = lo
-                in_range += last - first
-                fx = np.float32(px)
-                fy = np.float32(py)
-                for s in range(first, last):
-                    k = base + s
-                    u = su[k]
-                    v = sv[k]
-                    if u < ua or u > ub or v < va or v > vb:
-                        continue
-                    tested += 1
-                    if lens:
-                        t = st[k]
-                        X0 = _at(X00, dX0, LX0, dLX0, t, u)
-                        Y0 = _at(Y00, dY0, LY0, dLY0, t, v)
-                        W0 = W00 + t * dW0
-                        Z0 = Z00 + t * dZ0
-                        X1 = _at(X01, dX1, LX1, dLX1, t, u)
-                        Y1 = _at(Y01, dY1, LY1, dLY1, t, v)
-                        W1 = W01 + t * dW1
-                        Z1 = Z01 + t * dZ1
-                        X2 = _at(X02, dX2, LX2, dLX2, t, u)
-                        Y2 = _at(Y02, dY2, LY2, dLY2, t, v)
-                        W2 = W02 + t * dW2
-                        Z2 = Z02 + t * dZ2
-                        a0, b0, c0, a1, b1, c1, a2, b2, c2, D = _edges(X0, Y0, W0, X1, Y1, W1, X2, Y2, W2)
-                    ok, r0, r1, r2, z = _decide(a0, b0, c0, a1, b1, c1, a2, b2, c2, D, X0, Y0, W0, Z0, X1, Y1,
-                                                W1, Z1, X2, Y2, W2, Z2, fx + sx[k], fy + sy[k],
-                                                backface_culling, eps)
-                    if ok:
-                        # the true depth lies in z^; clamping removes float32 rounding
-                        # so z-cull decisions made on z^ agree with the ROP's
-                        out_tri[n] = tri
-                        out_pix[n] = py * width + px
-                        out_sidx[n] = s
-                        out_z[n] = min(max(z, za), zb)
-                        out_b0[n] = r0
-                        out_b1[n] = r1
-                        out_b2[n] = r2
-                        out_noread[n] = noread_in[i]
-                        n += 1
+            start = (py * width + px0) * spp
+            fy = np.float32(py)
+            pixels += px1 - px0
+            if not full_t:
+                searches += px1 - px0
+            row_tested = np.int32(0)  # int32: an int64 counter halves the vector width
+            row_range = np.int32(0)
+            row_cand = np.int32(0)
+            # ---- pass 1: interval and float32 edge tests, marking candidates --
+            rt = st[start:start + length]
+            ru = su[start:start + length]
+            rv = sv[start:start + length]
+            rx = sx[start:start + length]
+            ry = sy[start:start + length]
+            # one branch-free loop over the whole row, which numba vectorizes: on a
+            # CPU that beats a per-pixel range lookup even for narrow t^ (the
+            # modelled hardware's lookups are still counted as such)
+            row_tested, row_range, row_cand = _mark(0, length, general, rt, ru, rv, rx, ry, colf, cand, fpx0,
+                                                    fy, iv, neps, tc)
+            tested += row_tested
+            in_range += row_range
+            if row_cand == 0:
+                continue
+            # ---- pass 2: the full decision on the candidates ----------------
+            for j in range(length):
+                if cand[j] == 0:
+                    continue
+                k = start + j
+                t = st[k]
+                u = su[k]
+                v = sv[k]
+                x = (fpx0 + colf[j]) + sx[k]
+                y = fy + sy[k]
+                X0 = _at(X00, dX0, LX0, dLX0, t, u)
+                Y0 = _at(Y00, dY0, LY0, dLY0, t, v)
+                W0 = W00 + t * dW0
+                Z0 = Z00 + t * dZ0
+                X1 = _at(X01, dX1, LX1, dLX1, t, u)
+                Y1 = _at(Y01, dY1, LY1, dLY1, t, v)
+                W1 = W01 + t * dW1
+                Z1 = Z01 + t * dZ1
+                X2 = _at(X02, dX2, LX2, dLX2, t, u)
+                Y2 = _at(Y02, dY2, LY2, dLY2, t, v)
+                W2 = W02 + t * dW2
+                Z2 = Z02 + t * dZ2
+                a0, b0, c0, a1, b1, c1, a2, b2, c2, D = _edges(X0, Y0, W0, X1, Y1, W1, X2, Y2, W2)
+                ok, r0, r1, r2, z = _decide(a0, b0, c0, a1, b1, c1, a2, b2, c2, D, X0, Y0, W0, Z0, X1, Y1,
+                                            W1, Z1, X2, Y2, W2, Z2, x, y, backface_culling, eps)
+                if ok:
+                    pix = py * width + px0 + j // spp
+                    # the true depth lies in z^; clamping removes float32 rounding
+                    # so z-cull decisions made on z^ agree with the ROP's
+                    out_tri[n] = tri
+                    out_pix[n] = pix
+                    out_sidx[n] = j % spp
+                    out_z[n] = min(max(z, za), zb)
+                    out_b0[n] = r0
+                    out_b1[n] = r1
+                    out_b2[n] = r2
+                    out_noread[n] = noread_in[i]
+                    n += 1
     log_spp = 1
     while (1 << log_spp) <= spp:
         log_spp += 1
