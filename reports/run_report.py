@@ -1,10 +1,19 @@
-"""The one-run report: a one-screen text summary and a short Markdown/HTML report."""
+"""The one-run report: a one-screen text summary and a short Markdown/HTML report.
+
+The HTML report embeds the image and three figures (:mod:`reports.figures`):
+the per-unit cycle breakdown, the pipeline diagram (units colored by
+utilization, queues labelled with occupancy) and the timeline of unit states
+and queue occupancy. The Markdown report links the same figures as PNG files
+when it is given a folder to write them to (``files_dir``).
+"""
 
 from __future__ import annotations
 
-import base64
 import html
 import io
+import os
+import tempfile
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -72,8 +81,49 @@ def _png_bytes(image: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def markdown_report(result, run_info: dict) -> str:
-    """A short Markdown report next to ``image.png``."""
+def run_figures(result) -> list[tuple[str, str, str, object]]:
+    """The run's figures: ``(slug, title, caption, Figure)`` for the cycle breakdown,
+    the pipeline diagram and the timeline."""
+    from reports import figures as F
+
+    t = result.timing
+    depths = dict(zip(t.queues["channel"], t.queues["depth"])) if "depth" in t.queues else {}
+    return [
+        ("cycle_breakdown", "Per-unit cycle breakdown",
+         "Busy, starved (waiting for input) and blocked (waiting for room downstream) cycles of each unit.",
+         F.cycle_breakdown(t.units, frame_cycles=t.frame_cycles)),
+        ("pipeline", "Pipeline",
+         "Units colored by utilization (the busiest unit has the colormap's top color); queues labelled with their "
+         "mean and peak occupancy in batches (red: the queue was full at some time).",
+         F.pipeline_diagram(t.units, t.queues)),
+        ("timeline", "Timeline",
+         "Each unit's state over simulated cycles and each queue's occupancy (dotted line: its depth).",
+         F.timeline(t.traces, t.queue_series, t.frame_cycles, queue_depths=depths)),
+    ]
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def markdown_report(result, run_info: dict, files_dir: str | Path | None = None) -> str:
+    """A short Markdown report next to ``image.png``.
+
+    With ``files_dir`` (a folder beside the Markdown file, created if needed)
+    the cycle breakdown, pipeline diagram and timeline are written there as
+    PNG files and linked as ``<files_dir name>/<figure>.png``; without it the
+    report is text only.
+    """
     hd = headline(result)
     lines = [
         f"# pipeline-sim run: {run_info.get('scene', '')}",
@@ -95,27 +145,46 @@ def markdown_report(result, run_info: dict) -> str:
         "```\n" + result.timing.queues.to_string(index=False) + "\n```",
         "",
     ]
+    if files_dir is not None:
+        from reports.figures import figure_png
+
+        fdir = Path(files_dir)
+        fdir.mkdir(parents=True, exist_ok=True)
+        lines += ["## Figures", ""]
+        for slug, title, caption, fig in run_figures(result):
+            _write_atomic(fdir / f"{slug}.png", figure_png(fig))
+            lines += [f"![{title}]({fdir.name}/{slug}.png)", "", f"*{title}.* {caption}", ""]
     return "\n".join(lines)
 
 
 def html_report(result, run_info: dict) -> str:
     """The same report as self-contained HTML (image embedded, no network)."""
     hd = headline(result)
-    img = base64.b64encode(_png_bytes(result.image)).decode()
+    from reports.figures import figure_png, png_data_uri
+
+    img = png_data_uri(_png_bytes(result.image))
     units = unit_table(result).to_html(index=False, border=0)
     queues = result.timing.queues.to_html(index=False, border=0, float_format=lambda v: f"{v:.2f}")
     title = html.escape(str(run_info.get("scene", "")))
+    figs = "\n".join(
+        f'<figure id="fig-{slug}"><img id="img-{slug}" data-figure="{slug}" alt="{html.escape(ftitle)}" '
+        f'src="{png_data_uri(figure_png(fig))}"><figcaption><strong>{html.escape(ftitle)}.</strong> '
+        f"{html.escape(caption)}</figcaption></figure>"
+        for slug, ftitle, caption, fig in run_figures(result))
     return f"""<!doctype html>
 <html><head><meta charset="utf-8"><title>pipeline-sim: {title}</title>
 <style>body{{font-family:sans-serif;max-width:60em;margin:2em auto}} td,th{{padding:2px 8px;text-align:right}}
-img{{image-rendering:pixelated;max-width:100%}}</style></head><body>
+img.render{{image-rendering:pixelated;max-width:100%}}
+figure{{margin:1em 0}} figure img{{max-width:100%;height:auto}} figcaption{{font-size:.9em;color:#555}}</style></head><body>
 <h1>pipeline-sim run: {title}</h1>
-<img alt="rendered image" src="data:image/png;base64,{img}">
+<img alt="rendered image" class="render" src="{img}">
 <ul><li>frame cycles: {hd['frame_cycles']:,.0f}</li>
 <li>STE: {100 * hd['ste']:.2f}% ({hd['samples_covered']:,} covered of {hd['samples_tested']:,} tested)</li>
 <li>shader executions: {hd['shader_executions']:,} ({hd['shader_executions_per_pixel']:.2f} per pixel)</li>
 <li>wall time: {hd['wall_time_s']:.2f} s</li></ul>
 <h2>Units</h2>{units}<h2>Queues</h2>{queues}
+<h2>Figures</h2>
+{figs}
 </body></html>
 """
 
