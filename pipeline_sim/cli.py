@@ -120,7 +120,7 @@ def cmd_run(args) -> int:
         result.timing.units.to_csv(tmp / "timing.csv", index=False)
         result.timing.queues.to_csv(tmp / "queues.csv", index=False)
         write_json(tmp / "run.json", info)
-        (tmp / "report.md").write_text(markdown_report(result, info))
+        (tmp / "report.md").write_text(markdown_report(result, info, files_dir=tmp / "report_files"))
         (tmp / "report.html").write_text(html_report(result, info))
     if not args.quiet:
         print(summary_text(result, title=f"{args.scene} -> {out_dir}"))
