@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench warmup clean
+.PHONY: demo test bench report warmup clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -24,6 +24,11 @@ test: $(STAMP)
 ## bench: set up, then run the benchmarks (table printed, results saved in bench-results/)
 bench: $(STAMP)
 	$(PY) -m benchmarks.run --out bench-results
+
+## report: set up, then run the shipped study "what accuracy costs" and write its report
+report: $(STAMP)
+	$(VENV)/bin/pipeline-sim sweep workloads/sweeps/accuracy_cost.toml --out runs/accuracy_cost
+	$(VENV)/bin/pipeline-sim report runs/accuracy_cost -o runs/accuracy_cost/report.html
 
 warmup: $(STAMP)
 	$(VENV)/bin/pipeline-sim warmup

@@ -29,6 +29,8 @@ examples:
   pipeline-sim run scene.toml --set shading.cache_entries=512 --set zcull.time_slices=8 --out runs/x
   pipeline-sim check workloads/scenes/default.toml
   pipeline-sim arch --set tile_traverser.tile_size=16
+  pipeline-sim sweep workloads/sweeps/quick.toml --out runs/quick
+  pipeline-sim report runs/quick -o runs/quick/report.html
 """
 
 
@@ -156,6 +158,27 @@ def cmd_warmup(args) -> int:
     return 0
 
 
+def cmd_sweep(args) -> int:
+    from pipeline_sim.sweep import load_sweep, run_sweep
+
+    spec = load_sweep(args.sweep)
+    points = run_sweep(spec, args.out, executor=args.executor, workers=args.workers, scheduler=args.scheduler,
+                       progress=not args.quiet, retry_errors=args.retry_errors)
+    if not args.quiet:
+        bad = int((points.status != "ok").sum())
+        print(f"{len(points)} points in {Path(args.out) / 'points.csv'} ({bad} failed)")
+    return 0
+
+
+def cmd_report(args) -> int:
+    from reports.sweep_report import build_report
+
+    out = Path(args.out) if args.out else Path(args.sweep_dir) / "report.html"
+    path = build_report(args.sweep_dir, out, metric=args.metric, cost=args.cost)
+    print(f"report: {path} (Markdown twin: {path.with_suffix('.md')})")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="pipeline-sim", description=DESCRIPTION, epilog=EPILOG,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -194,6 +217,41 @@ def build_parser() -> argparse.ArgumentParser:
     arch.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help="override one setting")
     arch.set_defaults(func=cmd_arch)
 
+    sweep = sub.add_parser("sweep", help="run (or resume) a what-if sweep over scene and architecture settings",
+                           description="Run every point of SWEEP.toml (format: README, 'Sweep files') in its own "
+                           "worker process and write DIR/points.csv (one row per point), DIR/results.csv (tidy: one "
+                           "row per point and counter or metric) and DIR/points/<id>/ (image, error map, counters, "
+                           "timing, trace, resolved config). Running the same command again resumes: finished "
+                           "points are not recomputed. A failing point is recorded with its error and the sweep goes on.",
+                           epilog="examples:\n  pipeline-sim sweep workloads/sweeps/quick.toml --out runs/quick\n"
+                           "  pipeline-sim sweep workloads/sweeps/accuracy_cost.toml --out runs/study --executor dask\n"
+                           "  pipeline-sim sweep s.toml --out runs/s --executor dask --scheduler tcp://10.0.0.5:8786",
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
+    sweep.add_argument("sweep", metavar="SWEEP.toml", help="sweep file")
+    sweep.add_argument("--out", "-o", required=True, metavar="DIR", help="results folder (resumed if it exists)")
+    sweep.add_argument("--executor", choices=("local", "dask", "serial"), default="local",
+                       help="local: a process pool on this machine (default); dask: a Dask cluster (--scheduler, or "
+                       "a local cluster on 127.0.0.1); serial: in this process")
+    sweep.add_argument("--workers", type=int, help="worker processes (default: the CPU count)")
+    sweep.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler address, e.g. tcp://host:8786")
+    sweep.add_argument("--retry-errors", action="store_true", help="run points recorded as failed again")
+    sweep.add_argument("--quiet", "-q", action="store_true", help="no progress output")
+    sweep.set_defaults(func=cmd_sweep)
+
+    report = sub.add_parser("report", help="write the HTML (and Markdown) report of a sweep results folder",
+                            description="Build a self-contained HTML report (figures embedded, no network "
+                            "resources) and a Markdown twin from a sweep results folder: error against cost with "
+                            "the Pareto frontier, counters, per-unit cycles and bottlenecks, parameters against "
+                            "metrics, images with error maps, the pipeline and a timeline of one point.",
+                            epilog="example:\n  pipeline-sim report runs/quick -o runs/quick/report.html",
+                            formatter_class=argparse.RawDescriptionHelpFormatter)
+    report.add_argument("sweep_dir", metavar="DIR", help="a folder written by `pipeline-sim sweep`")
+    report.add_argument("--out", "-o", metavar="FILE.html", help="output file (default: DIR/report.html)")
+    report.add_argument("--metric", default="flip", help="error metric: rmse, psnr, ssim or flip (default flip)")
+    report.add_argument("--cost", default="frame_cycles",
+                        help="cost column: frame_cycles (default), ops_total or wall_time_s")
+    report.set_defaults(func=cmd_report)
+
     warm = sub.add_parser("warmup", help="compile (or load from cache) all numba kernels and print the time",
                           description="Compile every numba kernel, or load it from the cache, and print the time.")
     warm.set_defaults(func=cmd_warmup)
@@ -209,7 +267,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"pipeline-sim: error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
     except KeyboardInterrupt:
-        print("pipeline-sim: interrupted", file=sys.stderr)
+        print("pipeline-sim: interrupted (a sweep keeps its finished points: run it again to resume)",
+              file=sys.stderr)
         return 130
 
 

@@ -832,25 +832,3 @@ def _accuracy_figure(acc: pd.DataFrame, metric: str, costs: list[str], color_by:
 
 # ---------------------------------------------------------------------------
 # command line
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m reports.sweep_report",
-                                 description="Write the HTML + Markdown report of a sweep results folder.")
-    ap.add_argument("sweep_dir")
-    ap.add_argument("--out", help="the HTML file (default: SWEEP_DIR/report.html)")
-    ap.add_argument("--metric", default="flip", help="error metric column (default flip)")
-    ap.add_argument("--cost", default="frame_cycles", help="cost column (default frame_cycles)")
-    args = ap.parse_args(argv)
-    out = Path(args.out) if args.out else Path(args.sweep_dir) / "report.html"
-    try:
-        path = build_report(args.sweep_dir, out, metric=args.metric, cost=args.cost)
-    except UserError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    print(path)
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -130,3 +130,29 @@ def test_failed_run_keeps_previous_output(small_scene, tmp_path):
     before = (out / "run.json").read_text()
     assert main(["run", str(small_scene), "--out", str(out), "--set", "rop.blend=mix"]) == 2
     assert (out / "run.json").read_text() == before
+
+
+def test_sweep_and_report_commands(root, tmp_path):
+    """The quick shipped sweep runs through the CLI, resumes, and its report is written."""
+    out = tmp_path / "quick"
+    sweep = root / "workloads/sweeps/quick.toml"
+    assert main(["sweep", str(sweep), "--out", str(out), "--workers", "2", "--quiet"]) == 0
+    points = pd.read_csv(out / "points.csv")
+    assert len(points) == 6 and (points.status == "ok").all()
+    # what accuracy costs: along spp, error falls and cost rises, at every tile size
+    for _, group in points.sort_values("image.spp").groupby("tile_traverser.tile_size"):
+        assert group.rmse.is_monotonic_decreasing and group.flip.is_monotonic_decreasing
+        assert group.frame_cycles.is_monotonic_increasing and group.samples_tested.is_monotonic_increasing
+    mtimes = {p.name: p.stat().st_mtime_ns for p in (out / "records").iterdir()}
+    assert main(["sweep", str(sweep), "--out", str(out), "--quiet"]) == 0  # resume: nothing recomputed
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "records").iterdir()} == mtimes
+    assert main(["report", str(out), "-o", str(out / "r.html")]) == 0
+    html = (out / "r.html").read_text()
+    assert html.count("data:image/png;base64,") >= 5
+    assert (out / "r.md").exists()
+
+
+def test_report_of_a_non_sweep_folder_is_a_user_error(tmp_path):
+    res = subprocess.run([sys.executable, "-m", "pipeline_sim", "report", str(tmp_path)], capture_output=True,
+                         text=True)
+    assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1 and "Traceback" not in res.stderr

@@ -1,0 +1,919 @@
+"""Parameter sweeps: run a scene over a grid of settings, with accuracy metrics.
+
+A sweep file is TOML. Paths in it are relative to the sweep file itself:
+
+.. code-block:: toml
+
+    [sweep]
+    scene = "../scenes/default.toml"          # required
+    arch = "my_arch.toml"                     # optional, applied over the default architecture
+    set = ["zcull.time_slices=4"]             # optional fixed overrides for every point (as `run --set`)
+    metrics = ["rmse", "psnr", "ssim", "flip"]  # optional subset of the metrics; default all
+
+    [reference]                               # optional; the image each point is measured against
+    kind = "pipeline"                         # "pipeline" (default) or "accumulation"
+    spp = 256                                 # pipeline: samples per pixel (power of two), default 256
+    # passes = 256                            # accumulation: single-sample passes, default 256
+    # seed = 12345                            # sample seed of the reference
+
+    [grid]                                    # cartesian product of every key's values
+    "image.spp" = [1, 4, 16]                  # image.width / height / spp / seed override the scene's [image]
+    "tile_traverser.tile_size" = [8, 16]      # any architecture setting by its dotted path
+
+    [[zip]]                                   # zero or more groups: equal-length lists varied together
+    "shading.cache_entries" = [256, 1024]
+    "shading.cache_ways" = [4, 8]
+
+Keys may be quoted (``"image.spp" = [...]``) or written as TOML dotted keys
+(``image.spp = [...]``); both name the same setting. The points are the
+cartesian product of the grid keys and the zip groups (each group is one axis
+whose values are the tuples), the last axis varying fastest. The point
+settings are applied after ``arch`` and ``set``. A sweep with no axes has one
+point (the scene as it is).
+
+Everything is checked before anything runs (:func:`load_sweep`): unknown
+tables, keys and setting paths (with the nearest known name suggested),
+empty or repeated value lists, zip groups of unequal length, a missing scene
+or architecture file, and every point's architecture (built with
+:func:`~pipeline_sim.config.load_arch`) and image settings. A problem is a
+one-line :class:`~pipeline_sim.errors.UserError` naming the file and key.
+
+Every point has a stable id, :func:`point_id`: a short hex hash of its sorted
+setting assignments, so a resumed or extended sweep finds finished points
+again whatever the order of the keys.
+
+Results (:func:`run_sweep`) go into an output folder::
+
+    sweep.json            resolved sweep (scene digest, arch, set, reference, metrics) and all points with ids
+    points.csv            one row per finished point: the summary record
+    results.csv           tidy: point_id, kind ("counter" | "summary"), unit ("" for summary), name, value
+    records/<id>.json     one per finished point (summary, counters; traceback of a failed point)
+    points/<id>/          image.npy, image.png, error_map.npy, counters.csv, timing.csv,
+                          queues.csv, trace.json, run.json (the full resolved configuration)
+    reference/<key>.npy   reference images, one per scene, image size and image-changing settings
+
+A point is done when its record exists: running the same command again
+computes only the missing points (a point folder without a record, left by a
+killed run, is computed again) and rebuilds the two tables from the records.
+A point that fails is recorded with status ``error`` and its message; the
+sweep goes on (``retry_errors=True`` runs failed points again).
+
+Command line: ``pipeline-sim sweep SWEEP.toml --out DIR [--executor
+local|dask|serial] [--workers N] [--scheduler ADDRESS] [--quiet]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import hashlib
+import itertools
+import json
+import math
+import os
+import platform
+import shutil
+import sys
+import tempfile
+import time
+import tomllib
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import numpy as np
+import pandas as pd
+
+from pipeline_sim.errors import UserError, did_you_mean, unknown_key_error
+
+__all__ = [
+    "SweepSpec", "load_sweep", "point_id", "run_point", "run_sweep", "SUMMARY_FIELDS", "HOST_TIMING_FIELDS",
+    "EXECUTORS", "main",
+]
+
+#: Setting paths under ``image.`` that override the scene's ``[image]`` table.
+IMAGE_KEYS = ("width", "height", "spp", "seed")
+#: Executors accepted by :func:`run_sweep`.
+EXECUTORS = ("local", "dask", "serial")
+#: Summary fields of every successful point, after its settings (metrics follow).
+SUMMARY_FIELDS = (
+    "frame_cycles", "wall_time_s", "ops_total", "samples_tested", "samples_covered", "ste",
+    "shader_executions", "shader_executions_per_pixel", "depth_bytes_per_pixel", "bottleneck_unit",
+)
+#: Summary fields that measure the host rather than the simulation (differ between identical runs).
+HOST_TIMING_FIELDS = ("wall_time_s",)
+
+_TOP_KEYS = ("sweep", "reference", "grid", "zip")
+_SWEEP_KEYS = ("scene", "arch", "set", "metrics")
+_ARITHMETIC = ("add", "mul", "madd", "rcp", "compare")
+_ID_LENGTH = 12
+
+
+# ---------------------------------------------------------------------------
+# The sweep file
+
+
+@dataclass
+class SweepSpec:
+    """A parsed, validated sweep file.
+
+    ``points`` lists every point's settings (dotted path -> value) in run
+    order; ``axes`` keeps the structure (each axis: its paths and its value
+    tuples). Paths are absolute.
+    """
+
+    path: Path
+    scene: Path
+    scene_digest: str
+    arch: Path | None
+    arch_digest: str | None
+    set: list[str]
+    metrics: tuple[str, ...]
+    reference: Any  # pipeline_sim.accuracy.ReferenceSpec
+    axes: list[tuple[tuple[str, ...], list[tuple[Any, ...]]]]
+    points: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def param_names(self) -> list[str]:
+        """Every varied setting path, in axis order."""
+        return [k for keys, _ in self.axes for k in keys]
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain, picklable, JSON-able form (what :func:`run_point` receives)."""
+        return {
+            "sweep": str(self.path),
+            "scene": str(self.scene),
+            "scene_digest": self.scene_digest,
+            "arch": None if self.arch is None else str(self.arch),
+            "arch_digest": self.arch_digest,
+            "set": list(self.set),
+            "metrics": list(self.metrics),
+            "reference": dataclasses.asdict(self.reference),
+        }
+
+
+def point_id(params: dict[str, Any]) -> str:
+    """Stable short hex id of a point: a hash of its sorted setting assignments."""
+    text = json.dumps({str(k): v for k, v in params.items()}, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:_ID_LENGTH]
+
+
+def toml_literal(value: Any) -> str:
+    """``value`` written as a TOML literal (the right-hand side of ``--set``)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "nan"
+        if math.isinf(value):
+            return "inf" if value > 0 else "-inf"
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)
+    raise TypeError(f"not a TOML scalar: {value!r}")
+
+
+def _describe(params: dict[str, Any]) -> str:
+    return ", ".join(f"{k}={toml_literal(v)}" for k, v in params.items()) or "(no settings)"
+
+
+def _split_params(params: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
+    """(image settings, architecture ``--set`` overrides) of a point."""
+    image = {k.split(".", 1)[1]: v for k, v in params.items() if k.startswith("image.")}
+    overrides = [f"{k}={toml_literal(v)}" for k, v in params.items() if not k.startswith("image.")]
+    return image, overrides
+
+
+def _flatten(table: dict[str, Any], prefix: str = "") -> Iterator[tuple[str, Any]]:
+    """``{"a": {"b": [..]}}`` and ``{"a.b": [..]}`` both give ``("a.b", [..])``."""
+    for key, value in table.items():
+        path = f"{prefix}{key}"
+        if isinstance(value, dict):
+            yield from _flatten(value, path + ".")
+        else:
+            yield path, value
+
+
+def _file_digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _check_setting_path(where: str, key: str) -> None:
+    from pipeline_sim.config import SECTION_NAMES, ArchConfig
+
+    parts = key.split(".")
+    if len(parts) != 2 or not all(parts):
+        raise UserError(f"{where}: '{key}' is not a setting path (expected section.key, "
+                        "e.g. tile_traverser.tile_size or image.spp)")
+    section, name = parts
+    sections = ("image", *SECTION_NAMES)
+    if section not in sections:
+        raise UserError(f"{where}: unknown section '{section}' in '{key}'{did_you_mean(section, sections)}; "
+                        f"known sections: {', '.join(sections)}")
+    if section == "image":
+        known: tuple[str, ...] = IMAGE_KEYS
+    else:
+        known = tuple(f.name for f in dataclasses.fields(getattr(ArchConfig(), section)))
+    if name not in known:
+        raise unknown_key_error(f"{where}: [{section}]", name, known)
+
+
+def _check_image_value(where: str, name: str, value: Any) -> None:
+    from pipeline_sim.scene import _MAX_IMAGE_SIZE, _MAX_SPP
+
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise UserError(f"{where}: expected an integer, got {value!r}")
+    if name == "seed":
+        if not 0 <= value < 2**64:
+            raise UserError(f"{where}: must be in [0, 2^64), got {value}")
+        return
+    limit = _MAX_SPP if name == "spp" else _MAX_IMAGE_SIZE
+    if not 1 <= value <= limit:
+        raise UserError(f"{where}: must be from 1 to {limit}, got {value}")
+    if name == "spp" and value & (value - 1):
+        raise UserError(f"{where}: spp = {value} must be a power of two (the default net sample pattern)")
+
+
+def _read_sweep_toml(path: Path, where: str) -> dict[str, Any]:
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        raise UserError(f"{where}: sweep file not found (resolved to '{path.resolve()}')") from None
+    except IsADirectoryError:
+        raise UserError(f"{where}: is a directory, expected a TOML sweep file") from None
+    except UnicodeDecodeError as exc:
+        raise UserError(f"{where}: not valid UTF-8 text (byte {exc.start})") from None
+    except OSError as exc:
+        raise UserError(f"{where}: cannot read sweep file: {exc.strerror or exc}") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else "syntax error"
+        raise UserError(f"{where}: invalid TOML: {msg}") from None
+
+
+def _string(where: str, value: Any) -> str:
+    if not isinstance(value, str) or not value:
+        raise UserError(f"{where}: expected a non-empty string, got {value!r}")
+    return value
+
+
+def _value_list(where: str, value: Any, unique: bool = True) -> list[Any]:
+    """A non-empty list of TOML scalars (distinct unless ``unique`` is false)."""
+    if not isinstance(value, list):
+        raise UserError(f"{where}: expected a list of values, e.g. [1, 4, 16], got {value!r}")
+    if not value:
+        raise UserError(f"{where}: the list of values is empty")
+    seen: set[str] = set()
+    for v in value:
+        if isinstance(v, (list, dict)) or not isinstance(v, (bool, int, float, str)):
+            raise UserError(f"{where}: values must be numbers, booleans or strings, got {v!r}")
+        canon = json.dumps(v)
+        if unique and canon in seen:
+            raise UserError(f"{where}: value {toml_literal(v)} is listed twice")
+        seen.add(canon)
+    return list(value)
+
+
+def load_sweep(path: str | Path) -> SweepSpec:
+    """Read and validate a sweep file (format: the module docstring).
+
+    Raises :class:`UserError` (one line naming the file and key) for any
+    problem, including a point whose settings do not make a valid
+    architecture or image; nothing is run.
+    """
+    from pipeline_sim.accuracy import METRICS, ReferenceSpec
+    from pipeline_sim.config import apply_overrides, arch_from_dict, load_arch, parse_override
+    from pipeline_sim.scene import load_scene
+
+    p = Path(path)
+    where = str(path)
+    data = _read_sweep_toml(p, where)
+    for key in data:
+        if key not in _TOP_KEYS:
+            raise unknown_key_error(where, key, _TOP_KEYS)
+    if "sweep" not in data:
+        raise UserError(f"{where}: a [sweep] table with scene = \"...\" is required")
+    sw = data["sweep"]
+    if not isinstance(sw, dict):
+        raise UserError(f"{where}: sweep: expected a table [sweep]")
+    for key in sw:
+        if key not in _SWEEP_KEYS:
+            raise unknown_key_error(f"{where}: [sweep]", key, _SWEEP_KEYS)
+    base_dir = p.parent
+
+    # scene
+    if "scene" not in sw:
+        raise UserError(f"{where}: sweep.scene: missing (the scene file to render, relative to the sweep file)")
+    scene_text = _string(f"{where}: sweep.scene", sw["scene"])
+    scene_path = (base_dir / scene_text).resolve()
+    if not scene_path.is_file():
+        raise UserError(f"{where}: sweep.scene: scene file '{scene_text}' not found (resolved to '{scene_path}')")
+    try:
+        scene = load_scene(scene_path)
+    except UserError as exc:
+        raise UserError(f"{where}: sweep.scene: {exc}") from None
+
+    # architecture: file, then fixed overrides
+    arch_path = None
+    if "arch" in sw:
+        arch_text = _string(f"{where}: sweep.arch", sw["arch"])
+        arch_path = (base_dir / arch_text).resolve()
+        if not arch_path.is_file():
+            raise UserError(f"{where}: sweep.arch: architecture file '{arch_text}' not found "
+                            f"(resolved to '{arch_path}')")
+    fixed = sw.get("set", [])
+    if not isinstance(fixed, list) or not all(isinstance(s, str) for s in fixed):
+        raise UserError(f"{where}: sweep.set: expected a list of \"section.key=value\" strings, got {fixed!r}")
+    try:
+        for text in fixed:
+            section, key, _ = parse_override(text)
+            _check_setting_path(f"{where}: sweep.set", f"{section}.{key}")
+            if section == "image":
+                raise UserError(f"{where}: sweep.set: '{text}': image settings belong in the scene or in [grid]")
+    except UserError as exc:
+        msg = str(exc)
+        raise UserError(msg if msg.startswith(where) else f"{where}: sweep.set: {msg}") from None
+    try:
+        base = load_arch(arch_path, None)
+    except UserError as exc:
+        raise UserError(f"{where}: sweep.arch: {exc}") from None
+    try:
+        base = apply_overrides(base, list(fixed))
+    except UserError as exc:
+        raise UserError(f"{where}: sweep.set: {exc}") from None
+
+    # metrics
+    metrics: tuple[str, ...] = tuple(METRICS)
+    if "metrics" in sw:
+        m = sw["metrics"]
+        if not isinstance(m, list) or not m:
+            raise UserError(f"{where}: sweep.metrics: expected a non-empty list, a subset of {list(METRICS)}")
+        for name in m:
+            if name not in METRICS:
+                raise UserError(f"{where}: sweep.metrics: unknown metric {name!r}{did_you_mean(str(name), METRICS)}; "
+                                f"known: {', '.join(METRICS)}")
+        if len(set(m)) != len(m):
+            raise UserError(f"{where}: sweep.metrics: a metric is listed twice")
+        metrics = tuple(x for x in METRICS if x in m)
+
+    # reference
+    ref_table = data.get("reference", {})
+    if not isinstance(ref_table, dict):
+        raise UserError(f"{where}: reference: expected a table [reference]")
+    ref_keys = tuple(f.name for f in dataclasses.fields(ReferenceSpec))
+    for key in ref_table:
+        if key not in ref_keys:
+            raise unknown_key_error(f"{where}: [reference]", key, ref_keys)
+    try:
+        reference = ReferenceSpec(**ref_table)
+    except UserError as exc:
+        raise UserError(f"{where}: [reference]: {exc}") from None
+
+    # axes
+    axes: list[tuple[tuple[str, ...], list[tuple[Any, ...]]]] = []
+    owner: dict[str, str] = {}
+    # an architecture value wrong on its own (type, range); a cross-key rule (cache_entries a
+    # multiple of cache_ways) is judged per point below, where other keys may make it right
+    alone_errors: dict[tuple[str, str], str] = {}
+
+    def check_values(table: str, key: str, values: list[Any]) -> None:
+        loc = f"{where}: {table} {key}"
+        if key in owner:
+            raise UserError(f"{loc}: '{key}' is already varied in {owner[key]}")
+        owner[key] = table
+        section, name = key.split(".")
+        for v in values:
+            if section == "image":
+                _check_image_value(f"{loc} = {toml_literal(v)}", name, v)
+                continue
+            try:
+                arch_from_dict({section: {name: v}}, where="--set", base=base)
+            except UserError as exc:
+                alone_errors[(key, json.dumps(v))] = (table, str(exc))
+
+    grid = data.get("grid", {})
+    if not isinstance(grid, dict):
+        raise UserError(f"{where}: grid: expected a table [grid]")
+    for key, value in _flatten(grid):
+        loc = f"{where}: [grid] {key}"
+        _check_setting_path(loc, key)
+        values = _value_list(loc, value)
+        check_values("[grid]", key, values)
+        axes.append(((key,), [(v,) for v in values]))
+
+    groups = data.get("zip", [])
+    if isinstance(groups, dict):
+        groups = [groups]
+    if not isinstance(groups, list) or not all(isinstance(g, dict) for g in groups):
+        raise UserError(f"{where}: zip: expected [[zip]] tables")
+    for i, group in enumerate(groups, 1):
+        table = f"[[zip]] #{i}"
+        gloc = f"{where}: {table}"
+        items = list(_flatten(group))
+        if not items:
+            raise UserError(f"{gloc}: the group is empty")
+        keys, columns = [], []
+        for key, value in items:
+            loc = f"{gloc} {key}"
+            _check_setting_path(loc, key)
+            value = _value_list(loc, value, unique=False)  # a zip column may repeat a value
+            check_values(table, key, value)
+            keys.append(key)
+            columns.append(value)
+        lengths = {len(c) for c in columns}
+        if len(lengths) > 1:
+            desc = ", ".join(f"{k} has {len(c)}" for k, c in zip(keys, columns))
+            raise UserError(f"{gloc}: lists must have equal lengths ({desc})")
+        tuples = list(zip(*columns))
+        if len({json.dumps(t) for t in tuples}) != len(tuples):
+            raise UserError(f"{gloc}: a combination of values is listed twice")
+        axes.append((tuple(keys), tuples))
+
+    # points: every point's architecture built now, exactly as run_point builds it
+    points: list[dict[str, Any]] = []
+    checked: set[tuple[str, ...]] = set()
+    for combo in itertools.product(*(values for _, values in axes)):
+        params: dict[str, Any] = {}
+        for (keys, _), values in zip(axes, combo):
+            params.update(zip(keys, values))
+        _, overrides = _split_params(params)
+        if tuple(overrides) not in checked:
+            try:
+                load_arch(arch_path, list(fixed) + overrides)
+            except UserError as exc:
+                for k, v in params.items():  # blame one key when it alone gives this error
+                    table, msg = alone_errors.get((k, json.dumps(v)), ("", ""))
+                    if msg == str(exc):
+                        raise UserError(f"{where}: {table} {k} = {toml_literal(v)}: "
+                                        f"{msg.removeprefix('--set: ')}") from None
+                raise UserError(f"{where}: point {_describe(params)}: {exc}") from None
+            checked.add(tuple(overrides))
+        points.append(params)
+
+    return SweepSpec(
+        path=p.resolve(), scene=scene_path, scene_digest=scene.digest, arch=arch_path,
+        arch_digest=None if arch_path is None else _file_digest(arch_path), set=list(fixed),
+        metrics=metrics, reference=reference, axes=axes, points=points,
+    )
+
+
+# ---------------------------------------------------------------------------
+# One point
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    """Write ``text`` to a temporary sibling, then rename it over ``path``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def _atomic_write_csv(path: Path, frame: pd.DataFrame) -> None:
+    _atomic_write_text(path, frame.to_csv(index=False))
+
+
+def _json_text(data: Any, indent: int | None = 2) -> str:
+    from pipeline_sim.output import _json_default
+
+    seps = None if indent else (",", ":")
+    return json.dumps(data, indent=indent, sort_keys=indent is not None, default=_json_default, separators=seps) + "\n"
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    if isinstance(exc, UserError):
+        return text
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _summarize(result: Any, metrics: dict[str, float]) -> dict[str, Any]:
+    from reports.run_report import headline
+
+    hd = headline(result)
+    c = result.counters
+    units = result.timing.units
+    busiest = units.loc[units.busy.idxmax(), "unit"] if len(units) else ""
+    out = {
+        "frame_cycles": float(hd["frame_cycles"]),
+        "wall_time_s": float(hd["wall_time_s"]),
+        "ops_total": int(c[c.counter.isin(_ARITHMETIC)].value.sum()),
+        "samples_tested": int(hd["samples_tested"]),
+        "samples_covered": int(hd["samples_covered"]),
+        "ste": float(hd["ste"]),
+        "shader_executions": int(hd["shader_executions"]),
+        "shader_executions_per_pixel": float(hd["shader_executions_per_pixel"]),
+        "depth_bytes_per_pixel": float(hd["depth_bytes_per_pixel"]),
+        "bottleneck_unit": str(busiest),
+    }
+    out.update({k: float(v) for k, v in metrics.items()})
+    return out
+
+
+def run_point(spec_dict: dict[str, Any], params: dict[str, Any], out_dir: str | Path) -> dict[str, Any]:
+    """Run one point in this process; write its folder and record; return its summary.
+
+    ``spec_dict`` is :meth:`SweepSpec.to_dict`. Any exception is caught: the
+    point is then recorded with ``status = "error"`` and a one-line message.
+    Writes ``out_dir/points/<id>/`` (whole, atomically), then
+    ``out_dir/records/<id>.json`` (atomically) which marks the point done.
+    """
+    out = Path(out_dir)
+    pid = point_id(params)
+    counters: list[list[Any]] = []
+    tb = None
+    try:
+        summary, counters = _run_point(spec_dict, params, out, pid)
+    except Exception as exc:  # recorded, the sweep goes on
+        summary = {"point_id": pid, "status": "error", **params, "error": _one_line(exc)}
+        tb = traceback.format_exc()
+    record = {"point_id": pid, "params": params, "summary": summary, "counters": counters, "traceback": tb,
+              "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "host": platform.node()}
+    _atomic_write_text(out / "records" / f"{pid}.json", _json_text(record))
+    return summary
+
+
+def _run_point(spec: dict[str, Any], params: dict[str, Any], out: Path,
+               pid: str) -> tuple[dict[str, Any], list[list[Any]]]:
+    from pipeline_sim.accuracy import ReferenceSpec, error_map, error_metrics, reference_image
+    from pipeline_sim.cli import _package_versions
+    from pipeline_sim.config import load_arch
+    from pipeline_sim.jit import warm_up
+    from pipeline_sim.output import atomic_directory, write_json, write_png
+    from pipeline_sim.render import render_scene
+    from pipeline_sim.scene import load_scene
+
+    compile_s = warm_up()
+    scene = load_scene(spec["scene"])
+    image_params, overrides = _split_params(params)
+    if image_params:
+        scene = scene.replace(image=dataclasses.replace(scene.image, **image_params))
+    overrides = list(spec["set"]) + overrides
+    arch = load_arch(spec["arch"], overrides)
+    result = render_scene(scene, arch)
+
+    t0 = time.perf_counter()
+    ref_spec = ReferenceSpec(**spec["reference"])
+    reference = reference_image(scene, ref_spec, cache_dir=out / "reference", arch=arch)
+    t1 = time.perf_counter()
+    all_metrics = error_metrics(result.image, reference)
+    metrics = {k: all_metrics[k] for k in spec["metrics"]}
+    emap = error_map(result.image, reference)
+    t2 = time.perf_counter()
+
+    summary = {"point_id": pid, "status": "ok", **params, **_summarize(result, metrics)}
+    info = {
+        "point_id": pid,
+        "params": params,
+        "sweep": spec["sweep"],
+        "scene": spec["scene"],
+        "scene_digest": scene.digest,
+        "image": dataclasses.asdict(scene.image),
+        "seed": scene.image.seed,
+        "arch_file": spec["arch"],
+        "set": overrides,
+        "arch": arch.to_dict(),
+        "reference": spec["reference"],
+        "metrics": metrics,
+        "summary": summary,
+        "dimensions": result.dimensions,
+        "units_used": result.units_used,
+        "bypassed": [u for u in ("zcull", "sample_tester") if u not in result.units_used],
+        "frame_cycles": result.timing.frame_cycles,
+        "wall_time_s": result.wall_time,
+        "reference_time_s": t1 - t0,
+        "metrics_time_s": t2 - t1,
+        "compile_time_s": compile_s,
+        "versions": _package_versions(),
+        "host": platform.node(),
+        "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+    trace = {"units": result.timing.traces, "queues": result.timing.queue_series,
+             "frame_cycles": result.timing.frame_cycles}
+    with atomic_directory(out / "points" / pid) as tmp:
+        np.save(tmp / "image.npy", result.image)
+        np.save(tmp / "error_map.npy", np.asarray(emap, dtype=np.float32))
+        write_png(tmp / "image.png", result.image)
+        result.counters.to_csv(tmp / "counters.csv", index=False)
+        result.timing.units.to_csv(tmp / "timing.csv", index=False)
+        result.timing.queues.to_csv(tmp / "queues.csv", index=False)
+        (tmp / "trace.json").write_text(_json_text(trace, indent=None))
+        write_json(tmp / "run.json", info)
+    counters = [[str(u), str(n), int(v)] for u, n, v in result.counters.itertuples(index=False)]
+    return summary, counters
+
+
+# ---------------------------------------------------------------------------
+# Tables
+
+
+def _read_record(path: Path) -> dict[str, Any] | None:
+    try:
+        rec = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return rec if isinstance(rec, dict) and isinstance(rec.get("summary"), dict) else None
+
+
+def _points_frame(spec: SweepSpec, records: dict[str, dict[str, Any]]) -> pd.DataFrame:
+    params = spec.param_names
+    columns = ["point_id", "status", *params, *SUMMARY_FIELDS, *spec.metrics, "error"]
+    rows = []
+    for p in spec.points:
+        rec = records.get(point_id(p))
+        if rec is not None:
+            row = dict(rec["summary"])
+            row.setdefault("error", "")
+            rows.append(row)
+    frame = pd.DataFrame(rows, columns=columns)
+    return frame
+
+
+def _results_frame(spec: SweepSpec, records: dict[str, dict[str, Any]]) -> pd.DataFrame:
+    names = [n for n in SUMMARY_FIELDS if n != "bottleneck_unit"] + list(spec.metrics)
+    rows: list[tuple[str, str, str, str, Any]] = []
+    for p in spec.points:
+        pid = point_id(p)
+        rec = records.get(pid)
+        if rec is None:
+            continue
+        rows.extend((pid, "counter", u, n, v) for u, n, v in rec.get("counters") or [])
+        s = rec["summary"]
+        rows.extend((pid, "summary", "", n, s[n]) for n in names if n in s)
+    frame = pd.DataFrame([r[:4] for r in rows], columns=["point_id", "kind", "unit", "name"])
+    frame["value"] = pd.Series([r[4] for r in rows], dtype=object)  # counters stay integers
+    return frame
+
+
+def _write_tables(out: Path, spec: SweepSpec, records: dict[str, dict[str, Any]]) -> pd.DataFrame:
+    points = _points_frame(spec, records)
+    _atomic_write_csv(out / "points.csv", points)
+    _atomic_write_csv(out / "results.csv", _results_frame(spec, records))
+    return points
+
+
+# ---------------------------------------------------------------------------
+# Running a sweep
+
+
+def _fingerprint(spec: SweepSpec) -> dict[str, Any]:
+    """What makes earlier records in a folder reusable: everything but the point list."""
+    d = spec.to_dict()
+    return {k: d[k] for k in ("scene_digest", "arch_digest", "set", "metrics", "reference")}
+
+
+@contextlib.contextmanager
+def _folder_lock(out: Path) -> Iterator[None]:
+    """Hold an exclusive lock on ``out`` (released by the OS if the process dies)."""
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: no lock
+        yield
+        return
+    fh = open(out / ".sweep.lock", "w")
+    try:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            raise UserError(f"{out}: another sweep is running in this folder") from None
+        yield
+    finally:
+        fh.close()
+
+
+def _clean_leftovers(out: Path) -> None:
+    """Remove temporary files and folders a killed run left behind."""
+    for sub in ("points", "records"):
+        folder = out / sub
+        if not folder.is_dir():
+            continue
+        for entry in folder.iterdir():
+            if entry.name.startswith(".") and entry.name.endswith((".tmp", ".old")):
+                if entry.is_dir():
+                    shutil.rmtree(entry, ignore_errors=True)
+                else:
+                    with contextlib.suppress(OSError):
+                        entry.unlink()
+
+
+def _prepare_folder(spec: SweepSpec, out: Path) -> None:
+    """Check an existing folder holds the same sweep; write ``sweep.json``."""
+    meta = out / "sweep.json"
+    fp = _fingerprint(spec)
+    if meta.is_file():
+        try:
+            old = json.loads(meta.read_text()).get("fingerprint", {})
+        except (OSError, ValueError):
+            old = None
+        if old is not None:
+            changed = [k for k in fp if json.dumps(old.get(k), sort_keys=True) != json.dumps(fp[k], sort_keys=True)]
+            if changed:
+                raise UserError(f"{meta}: the folder holds results of a different sweep ({', '.join(changed)} "
+                                "changed); use another output folder or delete this one")
+    doc = {
+        "sweep_file": str(spec.path),
+        "spec": spec.to_dict(),
+        "fingerprint": fp,
+        "axes": [{"keys": list(keys), "values": [list(v) for v in values]} for keys, values in spec.axes],
+        "points": [{"point_id": point_id(p), "params": p} for p in spec.points],
+        "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+    _atomic_write_text(meta, _json_text(doc))
+
+
+class _Progress:
+    """tqdm on a terminal, else one plain line per finished point (stderr)."""
+
+    def __init__(self, total: int, done: int, enabled: bool) -> None:
+        self.total, self.k, self.enabled = total, done, enabled
+        self.bar = None
+        if enabled and sys.stderr.isatty():
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, initial=done, unit="point", desc="sweep", file=sys.stderr)
+
+    def message(self, text: str) -> None:
+        if not self.enabled:
+            return
+        if self.bar is not None:
+            self.bar.write(text, file=sys.stderr)
+        else:
+            print(text, file=sys.stderr, flush=True)
+
+    def update(self, summary: dict[str, Any]) -> None:
+        self.k += 1
+        if not self.enabled:
+            return
+        if self.bar is not None:
+            self.bar.update(1)
+            if summary.get("status") != "ok":
+                self.bar.write(f"{summary['point_id']} error: {summary.get('error', '')}", file=sys.stderr)
+            return
+        status = summary.get("status", "?")
+        wall = summary.get("wall_time_s")
+        tail = f"wall={wall:.2f}s" if isinstance(wall, float) else summary.get("error", "")
+        print(f"[{self.k}/{self.total}] {summary['point_id']} {status} {tail}", file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _warm_parent(spec: SweepSpec) -> float:
+    """Compile or load every kernel in this process so workers only load the cache."""
+    from pipeline_sim.jit import warm_up
+
+    start = time.perf_counter()
+    warm_up()
+    if spec.reference.kind == "accumulation":  # the sample-table kernel is not in warm_up
+        from pipeline_sim.sampling import make_samples
+
+        make_samples(4, 4, 1, 0, lens=True, motion=True, pattern="table",
+                     table=np.full((1, 5), 0.5, dtype=np.float32))
+    return time.perf_counter() - start
+
+
+def _failed(params: dict[str, Any], exc: BaseException) -> dict[str, Any]:
+    return {"point_id": point_id(params), "status": "error", **params, "error": f"worker failed: {_one_line(exc)}"}
+
+
+def _run_local(spec_dict: dict, pending: list[dict], out: Path, workers: int,
+               finish: Callable[[dict, dict], None]) -> None:
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures.process import BrokenProcessPool
+
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+    try:
+        futures = {pool.submit(run_point, spec_dict, p, str(out)): p for p in pending}
+        for fut in as_completed(futures):
+            params = futures[fut]
+            try:
+                summary = fut.result()
+            except BrokenProcessPool:
+                raise RuntimeError("a sweep worker process died; finished points are kept, "
+                                   "run the same command again to resume") from None
+            except Exception as exc:
+                summary = _failed(params, exc)
+            finish(params, summary)
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
+
+
+def _run_dask(spec_dict: dict, pending: list[dict], out: Path, workers: int, scheduler: str | None,
+              finish: Callable[[dict, dict], None]) -> None:
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    if scheduler:
+        client = Client(scheduler)
+    else:
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                               dashboard_address=None)
+        client = Client(cluster)
+    try:
+        futures = {}
+        for p in pending:
+            fut = client.submit(run_point, spec_dict, p, str(out), pure=False)
+            futures[fut.key] = (fut, p)
+        for fut in as_completed([f for f, _ in futures.values()]):
+            params = futures[fut.key][1]
+            try:
+                summary = fut.result()
+            except Exception as exc:
+                summary = _failed(params, exc)
+            finish(params, summary)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def run_sweep(spec: SweepSpec, out_dir: str | Path, *, executor: str = "local", workers: int | None = None,
+              scheduler: str | None = None, progress: bool = True, retry_errors: bool = False) -> pd.DataFrame:
+    """Run every point of ``spec`` not already done in ``out_dir``; return the points table.
+
+    ``executor``: ``"local"`` (a spawn process pool of ``workers``, default
+    ``os.cpu_count()``), ``"dask"`` (``scheduler`` address, else a
+    LocalCluster of ``workers`` processes on 127.0.0.1, closed at the end) or
+    ``"serial"`` (in this process). Finished points (a record exists) are
+    never run again; ``retry_errors`` reruns points recorded as errors.
+    """
+    if executor not in EXECUTORS:
+        raise UserError(f"executor: unknown executor '{executor}'{did_you_mean(executor, EXECUTORS)}; "
+                        f"known: {', '.join(EXECUTORS)}")
+    if workers is not None and workers < 1:
+        raise UserError(f"workers: must be at least 1, got {workers}")
+    out = Path(out_dir).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    with _folder_lock(out):
+        _clean_leftovers(out)
+        _prepare_folder(spec, out)
+        (out / "records").mkdir(exist_ok=True)
+        records: dict[str, dict[str, Any]] = {}
+        for params in spec.points:
+            pid = point_id(params)
+            rec = _read_record(out / "records" / f"{pid}.json")
+            if rec is not None and not (retry_errors and rec["summary"].get("status") != "ok"):
+                records[pid] = rec
+        pending = [p for p in spec.points if point_id(p) not in records]
+        total = len(spec.points)
+        _write_tables(out, spec, records)
+        bar = _Progress(total, total - len(pending), progress)
+        if not pending:
+            bar.message(f"sweep: all {total} points already done in {out}")
+            bar.close()
+            return _write_tables(out, spec, records)
+        n = min(workers or os.cpu_count() or 1, len(pending))
+        if executor == "serial":
+            where = "in this process"
+        elif executor == "dask" and scheduler:
+            where = f"scheduler {scheduler}"
+        else:
+            where = f"{n} worker{'s' * (n > 1)}"
+        bar.message(f"sweep: {total} points, {total - len(pending)} done, {len(pending)} to run "
+                    f"({executor}, {where}) -> {out}")
+        spec_dict = spec.to_dict()
+
+        def finish(params: dict[str, Any], summary: dict[str, Any]) -> None:
+            pid = point_id(params)
+            path = out / "records" / f"{pid}.json"
+            rec = _read_record(path)
+            if rec is None or rec.get("summary", {}).get("status") != summary.get("status"):
+                # the worker could not write it (died, or no shared folder): record what we know
+                rec = {"point_id": pid, "params": params, "summary": summary, "counters": [], "traceback": None,
+                       "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "host": platform.node()}
+                _atomic_write_text(path, _json_text(rec))
+            records[pid] = rec
+            _write_tables(out, spec, records)
+            bar.update(summary)
+
+        try:
+            if executor == "serial":
+                _warm_parent(spec)
+                for params in pending:
+                    finish(params, run_point(spec_dict, params, str(out)))
+            elif executor == "local":
+                _warm_parent(spec)
+                _run_local(spec_dict, pending, out, n, finish)
+            else:
+                _warm_parent(spec)
+                _run_dask(spec_dict, pending, out, n, scheduler, finish)
+        finally:
+            bar.close()
+        return _write_tables(out, spec, records)
