@@ -2,6 +2,7 @@
 
 import re
 import shlex
+from pathlib import Path
 
 import pytest
 
@@ -37,6 +38,23 @@ def test_arch_example_loads(root, tmp_path):
     assert arch.tile_traverser.tile_size == 16 and arch.shading.replacement == "fifo"
 
 
+def test_sweep_example_loads(root):
+    from pipeline_sim.sweep import load_sweep
+
+    sweep_blocks = [b for b in blocks(root, "toml") if b.startswith("# sweep")]
+    assert len(sweep_blocks) == 1
+    path = root / ".readme_example_sweep.toml"  # paths are relative to the sweep file
+    arch = root / "my_arch.toml"
+    try:
+        path.write_text(sweep_blocks[0])
+        arch.write_text("[zcull]\ntime_slices = 2\n")
+        spec = load_sweep(path)
+        assert len(spec.points) == 3 * 2 * 2 * 2
+    finally:
+        path.unlink()
+        arch.unlink()
+
+
 def commands(root):
     out = []
     for block in blocks(root, "sh"):
@@ -51,13 +69,19 @@ def test_readme_lists_commands(root):
     assert len(commands(root)) >= 5
 
 
-@pytest.mark.parametrize("index", range(6))
-def test_readme_command_runs(root, tmp_path, monkeypatch, index):
-    cmds = commands(root)
-    if index >= len(cmds):
-        pytest.skip("fewer commands")
-    args = shlex.split(cmds[index])[1:]
+README_COMMANDS = commands(Path(__file__).resolve().parent.parent)
+
+
+@pytest.mark.parametrize("command", README_COMMANDS)
+def test_readme_command_runs(root, tmp_path, monkeypatch, command):
+    args = shlex.split(command)[1:]
+    if args[0] == "report":  # reports the sweep the README runs just before
+        sweep = root / "workloads/sweeps/quick.toml"
+        assert main(["sweep", str(sweep), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+        args[1] = str(tmp_path / "out")
     if "--out" in args:
         args[args.index("--out") + 1] = str(tmp_path / "out")
+    if "-o" in args:
+        args[args.index("-o") + 1] = str(tmp_path / "report.html")
     monkeypatch.chdir(root)
-    assert main(args + (["--quiet"] if args[0] == "run" else [])) == 0
+    assert main(args + (["--quiet"] if args[0] in ("run", "sweep") else [])) == 0
