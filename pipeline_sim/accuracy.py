@@ -48,8 +48,6 @@ import dataclasses
 import hashlib
 import json
 import math
-import os
-import tempfile
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -58,6 +56,7 @@ from typing import Any
 import numpy as np
 
 from pipeline_sim.config import ArchConfig, load_arch
+from pipeline_sim.output import atomic_save_npy
 from pipeline_sim.errors import UserError, did_you_mean
 
 __all__ = ["METRICS", "REFERENCE_KINDS", "ReferenceSpec", "to_display", "error_metrics", "error_map",
@@ -333,16 +332,5 @@ def reference_image(scene, spec: ReferenceSpec = ReferenceSpec(), cache_dir: str
                 return cached
     image = np.ascontiguousarray(_render_reference(scene, spec, ref_arch), dtype=np.float32)
     if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".npy.tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                np.save(fh, image, allow_pickle=False)
-            os.replace(tmp, path)
-        except BaseException:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
-            raise
+        atomic_save_npy(path, image)
     return image

@@ -12,7 +12,6 @@ may name an earlier pass in ``texture`` to sample its resolved image.
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable

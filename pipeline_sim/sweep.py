@@ -64,7 +64,6 @@ local|dask|serial] [--workers N] [--scheduler ADDRESS] [--quiet]``.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import dataclasses
 import hashlib
@@ -75,7 +74,6 @@ import os
 import platform
 import shutil
 import sys
-import tempfile
 import time
 import tomllib
 import traceback
@@ -87,11 +85,11 @@ import numpy as np
 import pandas as pd
 
 from pipeline_sim.errors import UserError, did_you_mean, unknown_key_error
+from pipeline_sim.output import atomic_write_text
 
 __all__ = [
     "SweepSpec", "load_sweep", "point_id", "run_point", "run_sweep", "SUMMARY_FIELDS", "HOST_TIMING_FIELDS",
-    "EXECUTORS", "main",
-]
+    "EXECUTORS"]
 
 #: Setting paths under ``image.`` that override the scene's ``[image]`` table.
 IMAGE_KEYS = ("width", "height", "spp", "seed")
@@ -466,24 +464,8 @@ def load_sweep(path: str | Path) -> SweepSpec:
 # One point
 
 
-def _atomic_write_text(path: Path, text: str) -> None:
-    """Write ``text`` to a temporary sibling, then rename it over ``path``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-
-
 def _atomic_write_csv(path: Path, frame: pd.DataFrame) -> None:
-    _atomic_write_text(path, frame.to_csv(index=False))
+    atomic_write_text(path, frame.to_csv(index=False))
 
 
 def _json_text(data: Any, indent: int | None = 2) -> str:
@@ -542,7 +524,7 @@ def run_point(spec_dict: dict[str, Any], params: dict[str, Any], out_dir: str | 
         tb = traceback.format_exc()
     record = {"point_id": pid, "params": params, "summary": summary, "counters": counters, "traceback": tb,
               "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "host": platform.node()}
-    _atomic_write_text(out / "records" / f"{pid}.json", _json_text(record))
+    atomic_write_text(out / "records" / f"{pid}.json", _json_text(record))
     return summary
 
 
@@ -731,7 +713,7 @@ def _prepare_folder(spec: SweepSpec, out: Path) -> None:
         "points": [{"point_id": point_id(p), "params": p} for p in spec.points],
         "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
-    _atomic_write_text(meta, _json_text(doc))
+    atomic_write_text(meta, _json_text(doc))
 
 
 class _Progress:
@@ -898,7 +880,7 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, *, executor: str = "local", 
                 # the worker could not write it (died, or no shared folder): record what we know
                 rec = {"point_id": pid, "params": params, "summary": summary, "counters": [], "traceback": None,
                        "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "host": platform.node()}
-                _atomic_write_text(path, _json_text(rec))
+                atomic_write_text(path, _json_text(rec))
             records[pid] = rec
             _write_tables(out, spec, records)
             bar.update(summary)

@@ -473,7 +473,6 @@ def timeline(traces: Mapping[str, Sequence[tuple[float, float, str]]],
     (line) and the maximum (shaded).
     """
     frame = float(frame_cycles) if frame_cycles and frame_cycles > 0 else 1.0
-    units = [u for u in UNIT_ORDER if u in traces] + [u for u in traces if u not in UNIT_ORDER]
     rows = list(UNIT_ORDER) + [u for u in traces if u not in UNIT_ORDER]
     chans = list(queue_series)
     depths = dict(queue_depths or {})

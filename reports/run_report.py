@@ -11,14 +11,12 @@ from __future__ import annotations
 
 import html
 import io
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from pipeline_sim.output import linear_to_srgb8
+from pipeline_sim.output import atomic_write_bytes, linear_to_srgb8
 
 
 def unit_table(result) -> pd.DataFrame:
@@ -102,20 +100,6 @@ def run_figures(result) -> list[tuple[str, str, str, object]]:
     ]
 
 
-def _write_atomic(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-
-
 def markdown_report(result, run_info: dict, files_dir: str | Path | None = None) -> str:
     """A short Markdown report next to ``image.png``.
 
@@ -152,7 +136,7 @@ def markdown_report(result, run_info: dict, files_dir: str | Path | None = None)
         fdir.mkdir(parents=True, exist_ok=True)
         lines += ["## Figures", ""]
         for slug, title, caption, fig in run_figures(result):
-            _write_atomic(fdir / f"{slug}.png", figure_png(fig))
+            atomic_write_bytes(fdir / f"{slug}.png", figure_png(fig))
             lines += [f"![{title}]({fdir.name}/{slug}.png)", "", f"*{title}.* {caption}", ""]
     return "\n".join(lines)
 

@@ -27,13 +27,11 @@ their errors.
 
 from __future__ import annotations
 
-import argparse
 import html
 import json
 import math
 import os
 import shutil
-import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,9 +41,10 @@ import numpy as np
 import pandas as pd
 
 from pipeline_sim.errors import UserError, did_you_mean
+from pipeline_sim.output import atomic_write_bytes
 from reports import figures as F
 
-__all__ = ["Sweep", "load_sweep", "build_report", "select_images", "representative_point", "main"]
+__all__ = ["Sweep", "load_sweep", "build_report", "select_images", "representative_point"]
 
 #: Columns of points.csv that are not parameters.
 BASE_COLUMNS = ("point_id", "status", "error", "frame_cycles", "wall_time_s", "ops_total", "samples_tested",
@@ -510,21 +509,6 @@ class _Doc:
 # atomic writing
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-
-
 def _atomic_dir(target: Path, files: dict[str, bytes]) -> None:
     """Write ``files`` into a fresh folder that replaces ``target`` whole."""
     target.parent.mkdir(parents=True, exist_ok=True)
@@ -634,8 +618,8 @@ def build_report(sweep_dir: str | Path, out_html: str | Path, *, metric: str = "
                     for r, pid in zip(acc[label_params].to_dict("records") if label_params else [{}] * len(acc),
                                       acc["point_id"])]
     doc.fig("accuracy_cost", f"Error ({metric}) against cost",
-            f"Each point is one configuration; circled points form the Pareto frontier (more accurate and "
-            f"cheaper; the dashed staircase is the best error reachable at each cost). "
+            "Each point is one configuration; circled points form the Pareto frontier (more accurate and "
+            "cheaper; the dashed staircase is the best error reachable at each cost). "
             + (f"Colored by {color_by}. " if color_by else "")
             + f"Panels: {', '.join(costs)}; axes are logarithmic where values span 10x or more.",
             _accuracy_figure(acc, metric, costs, color_by))
@@ -820,8 +804,8 @@ def build_report(sweep_dir: str | Path, out_html: str | Path, *, metric: str = "
 
     files = {f.filename: f.png for f in doc.figures}
     _atomic_dir(files_dir, files)
-    _atomic_write(out_md, doc.markdown(files_dir.name).encode("utf-8"))
-    _atomic_write(out_html, doc.html().encode("utf-8"))
+    atomic_write_bytes(out_md, doc.markdown(files_dir.name).encode("utf-8"))
+    atomic_write_bytes(out_html, doc.html().encode("utf-8"))
     return out_html
 
 

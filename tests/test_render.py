@@ -10,7 +10,7 @@ from pipeline_sim.config import load_arch
 from pipeline_sim.draw import build_draw, draw_from_clip
 from pipeline_sim.render import RenderPass, run_pass, run_passes, scene_pass
 from pipeline_sim.scene import load_scene
-from pipeline_sim.shaders import IN_T_HI, IN_T_LO, IN_X, IN_Y, interval_shader, sample_texture
+from pipeline_sim.shaders import IN_X, IN_Y, interval_shader, sample_texture
 from reference import accumulation_render, point_coverage, positions_at, render_static, stratified_points
 
 CENTRE = np.array([[0.5, 0.5, 0.0, 0.0, 0.5]])  # one sample at the pixel centre
@@ -71,8 +71,6 @@ def test_blur_converges_to_accumulation_buffer():
 def test_closed_mesh_covers_every_sample_exactly_once(root):
     """Watertight: a closed convex mesh filling the view, moving and defocused,
     with backface culling: additive blending counts exactly one front surface per sample."""
-    scene = load_scene(root / "workloads/scenes/default.toml")
-    draw = build_draw(scene)
     # a subdivided box around the view axis, near the camera, translating and defocused
     import trimesh
 

@@ -8,7 +8,6 @@ w = 0 during the shutter.
 """
 
 import numpy as np
-import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 

@@ -10,7 +10,7 @@ from pipeline_sim.draw import draw_from_clip
 from units.sample_tester import inside_test
 from units.tile_test import TileTest
 from units.tile_traverser import TileTraverser
-from units.triangle_setup import ST_OK, TriangleSetup
+from units.triangle_setup import TriangleSetup
 
 
 def finite(lo, hi):

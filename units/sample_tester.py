@@ -25,7 +25,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from pipeline_sim.counters import N_OPS, OP_ADD, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+from pipeline_sim.counters import N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
 
 EVENTS = ("samples_tested", "samples_covered", "samples_in_range", "pixels_visited")
 EV_TESTED, EV_COVERED, EV_INRANGE, EV_PIXELS = range(len(EVENTS))

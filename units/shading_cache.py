@@ -23,10 +23,10 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from pipeline_sim.counters import N_OPS, OP_ADD, OP_CMP, OP_MADD, OP_MUL, OP_RCP
-from pipeline_sim.shaders import (IN_B, IN_DEPTH, IN_G, IN_MATERIAL, IN_NX, IN_NY, IN_NZ, IN_OBJECT, IN_PX,
-                                  IN_PY, IN_PZ, IN_R, IN_T, IN_T_HI, IN_T_LO, IN_TRIANGLE, IN_U, IN_U_HI,
-                                  IN_U_LO, IN_V, IN_V_HI, IN_V_LO, IN_X, IN_Y, IN_Z_HI, IN_Z_LO, N_INPUTS)
+from pipeline_sim.counters import N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+from pipeline_sim.shaders import (IN_B, IN_DEPTH, IN_MATERIAL, IN_NX, IN_NY, IN_NZ, IN_OBJECT, IN_PX, IN_R,
+                                  IN_T, IN_T_HI, IN_T_LO, IN_TRIANGLE, IN_U, IN_U_HI, IN_U_LO, IN_V, IN_V_HI,
+                                  IN_V_LO, IN_X, IN_Y, IN_Z_HI, IN_Z_LO, N_INPUTS)
 
 EVENTS = ("lookups", "hits", "misses", "evictions", "shader_executions")
 EV_LOOKUP, EV_HIT, EV_MISS, EV_EVICT, EV_EXEC = range(len(EVENTS))
@@ -262,7 +262,6 @@ class Shading:
             first[:] = idx[first_idx]
             half = np.full(nreq, 0.5, np.float32)
             zero = np.zeros(nreq, np.float32)
-            rate = self.config.shading_rate
             inputs = np.zeros((N_INPUTS, nreq), np.float32)
             interpolate_kernel(req_tri[:nreq], req_l[:, :nreq], half, zero, zero,
                                (px[first] + 0.5).astype(np.float32), (py[first] + 0.5).astype(np.float32),
