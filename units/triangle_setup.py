@@ -10,8 +10,8 @@ Implements PIPELINE.md §2.1. For each triangle of a batch:
 * conservative facing: the 2DH determinant D(t, u, v) = p0 . (p2 x p1) is a
   cubic in t and bilinear in (u, v); its Bernstein coefficients bound it, so
   a triangle is culled as back-facing only if D < 0 everywhere (004 §4.3,
-  Munkberg and Akenine-Moller 2011) and dropped as degenerate if D == 0
-  everywhere;
+  Munkberg and Akenine-Moller 2011) and dropped as degenerate if two
+  vertices coincide or D == 0 everywhere;
 * conservative screen bounds: the vertices at ts and te, widened by the lens
   shift at u, v = +-1 (exact extremes, since x = (X + u LX) / W is monotone in
   t and linear in u while W > 0), or the whole screen when a vertex path
@@ -269,9 +269,23 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
                     bern_max = max(bern_max, f[0])
         ops[OP_MADD] += (4 if moving else 1) * nu * nu * 15
         ops[OP_MUL] += (4 if moving else 1) * nu * nu * 6
-        # only an exactly zero determinant is dropped: a tiny one can still
-        # cover samples (a vertex near the 2DH origin keeps its direction)
-        if bern_max == 0.0 and bern_min == 0.0:
+        # dropped: two vertices that coincide for every (t, u, v), or an exactly
+        # zero determinant; a tiny one can still cover samples (a vertex near
+        # the 2DH origin keeps its direction), so it is kept
+        coincide = False
+        for k in range(3):
+            j = (k + 1) % 3
+            same = True
+            for s in range(2):
+                for c in (0, 1, 3):
+                    if px[s, k, c] != px[s, j, c]:
+                        same = False
+                for c in range(2):
+                    if lx[s, k, c] != lx[s, j, c]:
+                        same = False
+            if same:
+                coincide = True
+        if coincide or (bern_max == 0.0 and bern_min == 0.0):
             status[b] = ST_DEGENERATE
             events[EV_DEGENERATE] += 1
             continue
