@@ -27,6 +27,8 @@ Figures:
 
 from __future__ import annotations
 
+import textwrap
+
 import io
 import math
 from collections.abc import Mapping, Sequence
@@ -793,7 +795,7 @@ def image_grid(entries: Sequence[tuple[str, np.ndarray, np.ndarray | None]],
     for k, (label, img, emap) in enumerate(cols):
         a0, a1 = axes[0, k], axes[1, k]
         a0.imshow(linear_to_srgb8(np.asarray(img)), interpolation="nearest")
-        a0.set_title(label, fontsize=8)
+        a0.set_title("\n".join(textwrap.wrap(str(label), 24)) or label, fontsize=7)
         for a in (a0, a1):
             a.set_xticks([])
             a.set_yticks([])
