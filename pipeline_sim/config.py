@@ -36,6 +36,7 @@ class PipelineConfig:
     samples_per_batch: int = 65536
     queue_depth: int = 4
     clock_ghz: float = 1.0
+    specialize: bool = True
 
     def validate(self, where: str) -> None:
         _choice(where, "mode", self.mode, ("standard", "conservative"))

@@ -108,10 +108,12 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     traverser = TileTraverser(arch.tile_traverser, setup.table, ts, draw.width, draw.height,
                               coarse_test=arch.tile_test.algorithm != "bbox")
     tile_test = TileTest(arch.tile_test, setup.table, ts, draw.width, draw.height, draw.depth_w)
-    zcull = ZCull(arch.zcull, arch.rop.depth_test, ts, draw.width, draw.height, p.clear_depth, motion, lens)
+    spec = arch.pipeline.specialize
+    zcull = ZCull(arch.zcull, arch.rop.depth_test, ts, draw.width, draw.height, p.clear_depth,
+                  motion or not spec, lens or not spec)
     if conservative:
         zcull.active = False
-    tester = SampleTester(arch.sample_tester, setup.table, samples, ts, arch.triangle_setup.backface_culling)
+    tester = SampleTester(arch.sample_tester, setup.table, samples, ts, arch.triangle_setup.backface_culling, spec)
     shading = Shading(arch.shading, draw, setup.table, samples, p.shader, p.params, texture, conservative)
     rop = Rop(arch.rop, draw.width, draw.height, spp, p.clear_color, p.clear_depth,
               zcull if zcull.active else None, samples)

@@ -225,3 +225,27 @@ def test_tile_tests_change_cost_never_the_image(root, scene_name):
         "sample_tester", "samples_tested")
     if scene_name in ("default", "motion"):  # time bounds pay off most under motion
         assert out["hierarchical"].ste > 1.8 * out["bbox"].ste
+
+
+@pytest.mark.parametrize("scene_name", ["static", "motion", "defocus", "default"])
+def test_specialization_changes_cost_never_the_image(root, scene_name):
+    """Each triangle pays only for the dimensions it uses: the image is identical
+    with specialization off (every test run as 5D), the arithmetic is not; a
+    motion-only scene runs no lens-dimension tests and a defocus-only scene no
+    time-dimension tests."""
+    scene = load_scene(root / f"workloads/scenes/{scene_name}.toml")
+    scene = scene.replace(image=dataclasses.replace(scene.image, width=80, height=45, spp=4))
+    on = run_pass(scene_pass(scene, load_arch()))
+    off = run_pass(scene_pass(scene, load_arch(overrides=["pipeline.specialize=false"])))
+    np.testing.assert_array_equal(on.image, off.image)
+    c = {n: on.counter("sample_tester", n) for n in ("tests_2d", "tests_3d_xyt", "tests_4d_xyuv", "tests_5d")}
+    assert sum(c.values()) == on.counter("sample_tester", "samples_tested")
+    assert off.counter("sample_tester", "tests_5d") == off.counter("sample_tester", "samples_tested")
+    if scene_name == "static":
+        assert c["tests_2d"] == sum(c.values()) > 0
+    if scene_name == "motion":
+        assert c["tests_4d_xyuv"] == c["tests_5d"] == 0 and c["tests_3d_xyt"] > 0
+    if scene_name == "defocus":
+        assert c["tests_3d_xyt"] == c["tests_5d"] == 0 and c["tests_4d_xyuv"] > 0
+    if scene_name != "default":
+        assert on.counter("sample_tester", "madd") < off.counter("sample_tester", "madd")

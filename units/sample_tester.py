@@ -27,12 +27,19 @@ import numpy as np
 
 from pipeline_sim.counters import N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
 
-EVENTS = ("samples_tested", "samples_covered", "samples_in_range", "pixels_visited")
-EV_TESTED, EV_COVERED, EV_INRANGE, EV_PIXELS = range(len(EVENTS))
+EVENTS = ("samples_tested", "samples_covered", "samples_in_range", "pixels_visited",
+          "tests_2d", "tests_3d_xyt", "tests_4d_xyuv", "tests_5d")
+EV_TESTED, EV_COVERED, EV_INRANGE, EV_PIXELS, EV_2D, EV_3D, EV_4D, EV_5D = range(len(EVENTS))
 
 # arithmetic of one exact 5D test (vertex lerp + lens, three edges, D) and of a covered sample
-TEST_OPS_MADD = 9 + 6 + 9 + 6 + 2
-TEST_OPS_MUL = 9 + 3
+# arithmetic of one inside test by dimension (index: 0 = 2D, 1 = 3D xyt, 2 =
+# 4D xyuv, 3 = 5D): vertex positions at the sample (none in 2D: the edges are
+# set up once per tile; t: 3 madd for X, Y, W per vertex; lens: 2 madd per
+# X, Y; both: 3 + 3 + 1 per vertex), the three edge normals (9 mul + 9 madd,
+# none in 2D), the orientation D (1 mul + 2 madd) and three edge values
+# (2 madd each)
+TEST_OPS_MADD = (6, 9 + 9 + 2 + 6, 6 + 9 + 2 + 6, 21 + 9 + 2 + 6)
+TEST_OPS_MUL = (0, 9 + 1, 9 + 1, 9 + 1)
 COVER_OPS_RCP = 1
 COVER_OPS_MUL = 4
 COVER_OPS_MADD = 3 + 3
@@ -243,7 +250,7 @@ def _mark(j0, j1, general, rt, ru, rv, rx, ry, colf, cand, fpx0, fy, iv, neps, t
 @nb.njit(cache=True)
 def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, noread_in,
                        tile_size, width, height, spp, sx, sy, su, sv, st,
-                       p0, dp, l0, dl, edge_eps, backface_culling,
+                       p0, dp, l0, dl, edge_eps, backface_culling, specialize,
                        out_tri, out_pix, out_sidx, out_z, out_b0, out_b1, out_b2, out_noread, ops, events):
     """Interval lookup on the tile's samples and exact inside tests (002 §5; 004 eq. 3, 10-13).
 
@@ -262,6 +269,7 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
     """
     n = 0
     tested = 0
+    by_dims = np.zeros(4, np.int64)
     in_range = 0
     pixels = 0
     searches = 0
@@ -301,7 +309,10 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
         moving = (dX0 != 0 or dX1 != 0 or dX2 != 0 or dY0 != 0 or dY1 != 0 or dY2 != 0 or dZ0 != 0
                   or dZ1 != 0 or dZ2 != 0 or dW0 != 0 or dW1 != 0 or dW2 != 0 or dLX0 != 0 or dLX1 != 0
                   or dLX2 != 0 or dLY0 != 0 or dLY1 != 0 or dLY2 != 0)
-        general = LX0 != 0 or LX1 != 0 or LX2 != 0 or LY0 != 0 or LY1 != 0 or LY2 != 0 or moving
+        lens = LX0 != 0 or LX1 != 0 or LX2 != 0 or LY0 != 0 or LY1 != 0 or LY2 != 0
+        # the dimensions this triangle uses: 0 = 2D, 1 = xyt, 2 = xyuv, 3 = xyuvt
+        dims = (1 if moving else 0) + (2 if lens else 0)
+        general = dims != 0 or not specialize
         # 2D path: vertices and edges once per tile (t, u, v do not matter)
         sa0, sb0, sc0, sa1, sb1, sc1, sa2, sb2, sc2, sD = _edges(X00, Y00, W00, X01, Y01, W01, X02, Y02, W02)
         for c_, val in enumerate((X00, X01, X02, Y00, Y01, Y02, W00, W01, W02, dX0, dX1, dX2, dY0, dY1, dY2,
@@ -336,6 +347,7 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
             row_tested, row_range, row_cand = _mark(0, length, general, rt, ru, rv, rx, ry, colf, cand, fpx0,
                                                     fy, iv, neps, tc)
             tested += row_tested
+            by_dims[dims if specialize else 3] += row_tested
             in_range += row_range
             if row_cand == 0:
                 continue
@@ -382,6 +394,8 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
         log_spp += 1
     ops[OP_CMP] += 2 * searches * log_spp
     events[EV_TESTED] += tested
+    for d_ in range(4):
+        events[EV_2D + d_] += by_dims[d_]
     events[EV_INRANGE] += in_range
     events[EV_PIXELS] += pixels
     events[EV_COVERED] += n
@@ -394,8 +408,9 @@ class SampleTester:
     name = "sample_tester"
     events = EVENTS
 
-    def __init__(self, config, table, samples, tile_size: int, backface_culling: bool):
+    def __init__(self, config, table, samples, tile_size: int, backface_culling: bool, specialize: bool = True):
         self.config = config
+        self.specialize = specialize
         self.table = table
         self.samples = samples
         self.tile_size = tile_size
@@ -419,11 +434,13 @@ class SampleTester:
                                tiles["z_hi"], tiles["noread"],
                                ts, s.width, s.height, s.spp, s.x, s.y, s.u, s.v, s.t,
                                t.p0_32, t.dp_32, t.l0_32, t.dl_32, t.edge_eps, self.backface_culling,
+                               self.specialize,
                                out["tri"], out["pix"], out["sidx"], out["z"], out["b0"], out["b1"],
                                out["b2"], out["noread"], ops, events)
         tested = events[EV_TESTED]
-        ops[OP_MADD] += tested * TEST_OPS_MADD
-        ops[OP_MUL] += tested * TEST_OPS_MUL
+        for d_ in range(4):
+            ops[OP_MADD] += events[EV_2D + d_] * TEST_OPS_MADD[d_]
+            ops[OP_MUL] += events[EV_2D + d_] * TEST_OPS_MUL[d_]
         ops[OP_CMP] += tested * 4
         ops[OP_RCP] += m * COVER_OPS_RCP
         ops[OP_MUL] += m * COVER_OPS_MUL
