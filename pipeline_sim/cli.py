@@ -29,6 +29,7 @@ examples:
   pipeline-sim run scene.toml --set shading.cache_entries=512 --set zcull.time_slices=8 --out runs/x
   pipeline-sim check workloads/scenes/default.toml
   pipeline-sim arch --set tile_traverser.tile_size=16
+  pipeline-sim compare workloads/scenes/motion.toml --spp 16 --out runs/compare-motion
   pipeline-sim sweep workloads/sweeps/quick.toml --out runs/quick
   pipeline-sim report runs/quick -o runs/quick/report.html
 """
@@ -158,6 +159,41 @@ def cmd_warmup(args) -> int:
     return 0
 
 
+def cmd_compare(args) -> int:
+    from pipeline_sim.compare import compare, format_table, parse_algorithms, write_comparison
+
+    algorithms = parse_algorithms(args.algorithms)
+    scene, arch = _load_inputs(args)
+    compile_s = warm_up_quietly()
+
+    def progress(name, row):
+        if not args.quiet:
+            print(f"  {name}: STE {100 * row['ste']:.2f}%, {row['samples_tested']:,} samples tested, "
+                  f"{row['frame_cycles']:,.0f} cycles, {row['wall_time_s']:.2f} s", file=sys.stderr)
+
+    comp = compare(scene, arch, algorithms, progress=progress)
+    info = {"scene": str(args.scene), "scene_digest": scene.digest, "image": dataclasses.asdict(scene.image),
+            "arch": arch.to_dict(), "algorithms": algorithms, "compile_time_s": compile_s,
+            "versions": _package_versions()}
+    if args.out:
+        write_comparison(comp, Path(args.out), info)
+    if not args.quiet:
+        print(format_table(comp.table))
+        print(f"images identical across algorithms: {'yes' if comp.identical else 'NO'}"
+              + (f" (differ: {', '.join(comp.differing)})" if comp.differing else ""))
+    if not comp.identical:
+        print(f"pipeline-sim: error: images differ between {algorithms[0]} and {', '.join(comp.differing)}: "
+              "a culling test rejected a covered sample", file=sys.stderr)
+        return 1
+    return 0
+
+
+def warm_up_quietly() -> float:
+    from pipeline_sim.jit import warm_up
+
+    return warm_up()
+
+
 def cmd_sweep(args) -> int:
     from pipeline_sim.sweep import load_sweep, run_sweep
 
@@ -216,6 +252,31 @@ def build_parser() -> argparse.ArgumentParser:
     arch.add_argument("--arch", metavar="FILE", help="architecture TOML applied over the shipped default")
     arch.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help="override one setting")
     arch.set_defaults(func=cmd_arch)
+
+    from pipeline_sim.compare import ALGORITHMS, DESCRIPTIONS
+
+    comp = sub.add_parser("compare", help="render a scene with each culling algorithm and compare their cost",
+                          description="Render SCENE.toml once per culling algorithm and print (and with --out, "
+                          "save as table.csv, comparison.json, comparison.png and one image per algorithm) tiles "
+                          "tested and rejected, samples tested and covered, STE, arithmetic by stage (triangle "
+                          "setup, tile test, sample test, interpolation setup), depth-buffer bytes, shader "
+                          "executions, simulated cycles and wall time. The images must be identical (every "
+                          "algorithm is conservative); the command checks it and exits with status 1 if not. "
+                          "Algorithms: " + "; ".join(f"{k}: {v}" for k, v in DESCRIPTIONS.items()),
+                          epilog="example:\n  pipeline-sim compare workloads/scenes/motion.toml --spp 16 "
+                          "--algorithms bbox box hierarchical --out runs/compare-motion",
+                          formatter_class=argparse.RawDescriptionHelpFormatter)
+    comp.add_argument("scene", metavar="SCENE.toml", help="scene file")
+    comp.add_argument("--algorithms", nargs="+", metavar="NAME", choices=list(ALGORITHMS),
+                      help=f"algorithms to compare (default: all of {', '.join(ALGORITHMS)})")
+    comp.add_argument("--out", "-o", metavar="DIR", help="write the table, chart and images here")
+    comp.add_argument("--spp", type=int, help="samples per pixel (overrides [image].spp)")
+    comp.add_argument("--seed", type=int, help="sampling seed (overrides [image].seed)")
+    comp.add_argument("--tile", type=int, help="tile size in pixels")
+    comp.add_argument("--arch", metavar="FILE", help="architecture TOML applied over the shipped default")
+    comp.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help="override one setting")
+    comp.add_argument("--quiet", "-q", action="store_true", help="print nothing on success")
+    comp.set_defaults(func=cmd_compare)
 
     sweep = sub.add_parser("sweep", help="run (or resume) a what-if sweep over scene and architecture settings",
                            description="Run every point of SWEEP.toml (format: README, 'Sweep files') in its own "

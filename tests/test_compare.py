@@ -1,0 +1,64 @@
+"""pipeline-sim compare: the culling algorithms in the papers' terms, and the image-identity check."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import pipeline_sim.compare as cmp_mod
+from pipeline_sim.cli import main
+from pipeline_sim.compare import ALGORITHMS, compare
+from pipeline_sim.config import load_arch
+from pipeline_sim.scene import load_scene
+
+
+@pytest.fixture(scope="module")
+def small_motion(root):
+    scene = load_scene(root / "workloads/scenes/compare/motion_1x.toml")
+    return scene.replace(image=dataclasses.replace(scene.image, width=96, height=54, spp=8))
+
+
+def test_every_algorithm_covers_the_same_samples(small_motion):
+    comp = compare(small_motion, load_arch(), list(ALGORITHMS))
+    assert comp.identical and not comp.differing
+    t = comp.table.set_index("algorithm")
+    assert (t.samples_covered == t.samples_covered.iloc[0]).all()
+    # brute force BBOX tests the most samples; each added test never tests more
+    assert t.samples_tested.idxmax() == "bbox"
+    assert t.loc["box", "samples_tested"] <= t.loc["bbox", "samples_tested"]
+    assert t.loc["box+edge", "samples_tested"] <= t.loc["box", "samples_tested"]
+    assert t.loc["hierarchical", "ste"] > 2 * t.loc["bbox", "ste"]
+    # STE is covered / tested, computed here independently of the module
+    np.testing.assert_allclose(t.ste, t.samples_covered / t.samples_tested)
+    for stage in ("triangle_setup", "tile_test", "sample_test", "interpolation_setup"):
+        assert (t[f"ops_{stage}"] > 0).all()
+
+
+def test_cli_writes_table_chart_images(small_motion, root, tmp_path, capsys):
+    out = tmp_path / "cmp"
+    assert main(["compare", str(root / "workloads/scenes/compare/motion_1x.toml"), "--spp", "4",
+                 "--algorithms", "bbox", "hierarchical", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "images identical across algorithms: yes" in printed
+    table = pd.read_csv(out / "table.csv")
+    assert list(table.algorithm) == ["bbox", "hierarchical"]
+    info = json.loads((out / "comparison.json").read_text())
+    assert info["identical_images"] is True
+    assert (out / "comparison.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (out / "image_bbox.png").exists() and (out / "image_hierarchical.npy").exists()
+
+
+def test_cli_fails_when_images_differ(root, tmp_path, monkeypatch):
+    # a setting that changes coverage is not a culling algorithm: the check must catch it
+    monkeypatch.setitem(cmp_mod.ALGORITHMS, "not-conservative", ["rop.depth_test='greater'"])
+    rc = main(["compare", str(root / "workloads/scenes/compare/motion_1x.toml"), "--spp", "1",
+               "--algorithms", "bbox", "not-conservative", "--quiet"])
+    assert rc == 1
+
+
+def test_unknown_algorithm_is_a_user_error(root):
+    with pytest.raises(SystemExit) as exc:  # argparse choices
+        main(["compare", str(root / "workloads/scenes/motion.toml"), "--algorithms", "bboxx"])
+    assert exc.value.code == 2
