@@ -14,6 +14,8 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from pipeline_sim.errors import UserError, did_you_mean, unknown_key_error
 
 DEFAULT_ARCH_PATH = Path(__file__).with_name("data") / "default_arch.toml"
@@ -91,10 +93,29 @@ class TileTestConfig(UnitTiming):
     algorithm: str = "hierarchical"
     edge_test: bool = True
     lens_bounds: bool = True
+    # axis-aligned user clip planes on t, u and v (000 §2): samples outside are never covered
+    clip_t_lo: float = 0.0
+    clip_t_hi: float = 1.0
+    clip_u_lo: float = -1.0
+    clip_u_hi: float = 1.0
+    clip_v_lo: float = -1.0
+    clip_v_hi: float = 1.0
 
     def validate(self, where: str) -> None:
         super().validate(where)
         _choice(where, "algorithm", self.algorithm, TILE_TEST_ALGORITHMS)
+        for axis, lo, hi in (("t", 0.0, 1.0), ("u", -1.0, 1.0), ("v", -1.0, 1.0)):
+            a = getattr(self, f"clip_{axis}_lo")
+            b = getattr(self, f"clip_{axis}_hi")
+            if not (lo <= a <= b <= hi):
+                raise UserError(f"{where}.clip_{axis}_lo/clip_{axis}_hi: need {lo} <= lo <= hi <= {hi}, "
+                                f"got [{a}, {b}]")
+
+    @property
+    def clips(self) -> np.ndarray:
+        """(t_lo, t_hi, u_lo, u_hi, v_lo, v_hi) of the user clip planes."""
+        return np.array([self.clip_t_lo, self.clip_t_hi, self.clip_u_lo, self.clip_u_hi, self.clip_v_lo,
+                         self.clip_v_hi])
 
 
 @dataclass

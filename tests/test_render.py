@@ -10,7 +10,7 @@ from pipeline_sim.config import load_arch
 from pipeline_sim.draw import build_draw, draw_from_clip
 from pipeline_sim.render import RenderPass, run_pass, run_passes, scene_pass
 from pipeline_sim.scene import load_scene
-from pipeline_sim.shaders import IN_X, IN_Y, interval_shader, sample_texture
+from pipeline_sim.shaders import IN_T, IN_U, IN_X, IN_Y, interval_shader, sample_texture
 from reference import accumulation_render, point_coverage, positions_at, render_static, stratified_points
 
 CENTRE = np.array([[0.5, 0.5, 0.0, 0.0, 0.5]])  # one sample at the pixel centre
@@ -249,3 +249,34 @@ def test_specialization_changes_cost_never_the_image(root, scene_name):
         assert c["tests_3d_xyt"] == c["tests_5d"] == 0 and c["tests_4d_xyuv"] > 0
     if scene_name != "default":
         assert on.counter("sample_tester", "madd") < off.counter("sample_tester", "madd")
+
+
+@nb.njit(cache=True)
+def _clip_probe_shader(inputs, params, texture, out):
+    """1 for a sample with t <= 0.5 and u >= 0, 1000 otherwise."""
+    for i in range(inputs.shape[1]):
+        ok = inputs[IN_T, i] <= 0.5 and inputs[IN_U, i] >= 0.0
+        out[i, 0] = 1.0 if ok else 1000.0
+        out[i, 1] = 0.0
+        out[i, 2] = 0.0
+        out[i, 3] = 1.0
+
+
+def test_user_clip_planes_limit_the_covered_samples():
+    """000 §2: clip planes on t and u. A screen-filling quad, moving and defocused:
+    every covered sample lies inside the clip box and about half of t is clipped."""
+    quad = np.array([[[-2, -2, 0, 1], [2, -2, 0, 1], [2, 2, 0, 1]], [[-2, -2, 0, 1], [2, 2, 0, 1], [-2, 2, 0, 1]]],
+                    dtype=np.float64)
+    r = quad + np.array([1e-3, 0, 0, 0])
+    lens = np.full((2, 3, 2), 0.01)
+    d = draw_from_clip(quad, r, lens, lens, np.ones((2, 3)), 24, 16)
+    over = ["rop.depth_test='always'", "rop.blend='add'", "shading.mode='per_sample'"]
+    plain = run_pass(RenderPass(draw=d, arch=load_arch(overrides=over), spp=16, shader=_clip_probe_shader,
+                                clear_color=(0, 0, 0, 0)))
+    assert plain.image[..., 0].max() > 100  # without clips, samples outside the box are covered
+    clipped = run_pass(RenderPass(draw=d, arch=load_arch(overrides=over + [
+        "tile_test.clip_t_hi=0.5", "tile_test.clip_u_lo=0.0"]), spp=16, shader=_clip_probe_shader,
+        clear_color=(0, 0, 0, 0)))
+    red = clipped.image[..., 0]
+    assert red.max() <= 1.0  # no covered sample outside the clip box
+    assert 0.1 < red.mean() < 0.4  # about half of t times about half of u

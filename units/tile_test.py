@@ -12,6 +12,8 @@ Implements PIPELINE.md §2.3:
   al. 2011 that 001 §2 describes); a sample at lens u can be covered only if
   some vertex lies right of the tile's left side and some vertex left of its
   right side, which bounds u to an interval;
+* optional axis-aligned user clip planes on t, u and v (000 §2) bound every
+  interval by min/max, so samples outside them are never covered;
 * z^ from the vertex depths at the ends of t^ (the near and far faces of the
   moving box, 000 Appendix A first test): the depth of any point of the
   triangle is a convex combination of vertex depths while w > 0.
@@ -239,7 +241,7 @@ def plane_w_bounds(plane_n, plane_d, tri, x0, x1, y0, y1, ta, tb, ops):
 
 
 @nb.njit(cache=True)
-def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, bbox, edge_test, lens_bounds,
+def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, bbox, edge_test, lens_bounds, clips,
                      p0, dp, l0, dl, t_span, flags, edge_h, edge_gamma, plane_n, plane_d, depth_c1, depth_c0,
                      out_keep, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, ops, events):
     """Test each (triangle, tile) record; fill its intervals and ``out_keep``.
@@ -253,8 +255,8 @@ def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, bbox, ed
         x1 = min((tile_x[i] + 1) * tile_size, width) + MARGIN_PX
         y0 = tile_y[i] * tile_size - MARGIN_PX
         y1 = min((tile_y[i] + 1) * tile_size, height) + MARGIN_PX
-        ta = t_span[tri, 0]
-        tb = t_span[tri, 1]
+        ta = max(t_span[tri, 0], clips[0])  # user clip planes bound every interval (000 §2)
+        tb = min(t_span[tri, 1], clips[1])
         if bbox:  # no tile test: every sample of the time span, every lens position
             lo, hi = ta, tb
         else:
@@ -302,6 +304,12 @@ def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, bbox, ed
             ops[OP_RCP] += 6
             ops[OP_MUL] += 6
             ops[OP_CMP] += 12
+        ulo, uhi = max(ulo, clips[2]), min(uhi, clips[3])
+        vlo, vhi = max(vlo, clips[4]), min(vhi, clips[5])
+        ops[OP_CMP] += 6
+        if ulo > uhi or vlo > vhi:
+            events[EV_REJ_LENS] += 1
+            continue
         out_keep[i] = True
         events[EV_ACCEPT] += 1
         t_lo[i] = lo
@@ -339,6 +347,7 @@ class TileTest:
         t = self.table
         tile_test_kernel(tiles["tri"], tiles["tx"], tiles["ty"], self.tile_size, self.width, self.height,
                          self.config.algorithm == "bbox", self.config.edge_test, self.config.lens_bounds,
+                         self.config.clips,
                          t.p0, t.dp, t.l0, t.dl,
                          t.t_span, t.flags, t.edge_h, t.edge_gamma, t.plane_n, t.plane_d, self.depth_c1,
                          self.depth_c0, keep,
