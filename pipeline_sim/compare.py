@@ -25,6 +25,8 @@ ALGORITHMS: dict[str, list[str]] = {
     "bbox": ["tile_test.algorithm='bbox'"],
     "box": ["tile_test.algorithm='hierarchical'", "tile_test.edge_test=false", "tile_test.lens_bounds=false"],
     "box+edge": ["tile_test.algorithm='hierarchical'", "tile_test.edge_test=true", "tile_test.lens_bounds=false"],
+    "box+edge/tile": ["tile_test.algorithm='hierarchical'", "tile_test.edge_test=true", "tile_test.gamma='tile'",
+                      "tile_test.lens_bounds=false"],
     "box+lens": ["tile_test.algorithm='hierarchical'", "tile_test.edge_test=false", "tile_test.lens_bounds=true"],
     "hierarchical": ["tile_test.algorithm='hierarchical'", "tile_test.edge_test=true", "tile_test.lens_bounds=true"],
 }
@@ -32,6 +34,7 @@ DESCRIPTIONS = {
     "bbox": "every sample in the moving, defocused bounds (001/002 baseline)",
     "box": "moving box vs tile frustum planes (002 §4.1)",
     "box+edge": "moving box + linearized moving edges (002 §4.1-4.2)",
+    "box+edge/tile": "as box+edge, with the edge slope bound gamma recomputed per tile (002 §4.2)",
     "box+lens": "moving box + lens intervals u^, v^",
     "hierarchical": "moving box + linearized edges + lens intervals (default)",
 }

@@ -92,6 +92,7 @@ class TileTestConfig(UnitTiming):
     instances: int = 2
     algorithm: str = "hierarchical"
     edge_test: bool = True
+    gamma: str = "triangle"
     lens_bounds: bool = True
     # axis-aligned user clip planes on t, u and v (000 §2): samples outside are never covered
     clip_t_lo: float = 0.0
@@ -104,6 +105,7 @@ class TileTestConfig(UnitTiming):
     def validate(self, where: str) -> None:
         super().validate(where)
         _choice(where, "algorithm", self.algorithm, TILE_TEST_ALGORITHMS)
+        _choice(where, "gamma", self.gamma, ("triangle", "tile"))
         for axis, lo, hi in (("t", 0.0, 1.0), ("u", -1.0, 1.0), ("v", -1.0, 1.0)):
             a = getattr(self, f"clip_{axis}_lo")
             b = getattr(self, f"clip_{axis}_hi")

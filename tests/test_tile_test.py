@@ -18,9 +18,9 @@ W, H = 48, 32
 
 
 def assert_conservative(q, r, lx, ly, seed, tile_size=8, coarse_factor=2, edge_test=True, lens_bounds=True,
-                        depth_w=None):
+                        depth_w=None, gamma="triangle"):
     setup, alive, kept = setup_and_tiles(q, r, lx, ly, W, H, tile_size, coarse_factor, edge_test, lens_bounds,
-                                         depth_w=depth_w)
+                                         depth_w=depth_w, gamma=gamma)
     rng = np.random.default_rng(seed)
     pts = sample_inside_points(setup, 0, rng, 200, W, H)
     if not pts:
@@ -53,9 +53,10 @@ def test_tile_test_conservative_5d(tri, seed):
     assert_conservative(*tri, seed)
 
 
-@given(moving_triangle(lens=False), st.integers(0, 2**31))
-def test_tile_test_conservative_motion_only_edge_test(tri, seed):
-    assert_conservative(*tri, seed, edge_test=True)
+@given(moving_triangle(lens=False), st.integers(0, 2**31), st.sampled_from(["triangle", "tile"]),
+       st.sampled_from([1, 4, 8]))
+def test_tile_test_conservative_motion_only_edge_test(tri, seed, gamma, tile_size):
+    assert_conservative(*tri, seed, edge_test=True, gamma=gamma, tile_size=tile_size)
 
 
 @given(moving_triangle(motion=False), st.integers(0, 2**31))

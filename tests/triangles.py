@@ -59,7 +59,7 @@ def moving_triangle(draw, *, lens=True, motion=True, allow_w_cross=True, scale=1
 
 
 def setup_and_tiles(q, r, lx, ly, width=48, height=32, tile_size=8, coarse_factor=2, edge_test=True,
-                    lens_bounds=True, backface_culling=False, depth_w=None):
+                    lens_bounds=True, backface_culling=False, depth_w=None, gamma="triangle"):
     """Run triangle setup, the traverser and the tile test on one draw.
 
     Returns (setup, survivors of setup, tile records kept by the tile test).
@@ -69,6 +69,7 @@ def setup_and_tiles(q, r, lx, ly, width=48, height=32, tile_size=8, coarse_facto
     arch = load_arch(overrides=[f"tile_traverser.coarse_factor={coarse_factor}",
                                 f"tile_test.edge_test={'true' if edge_test else 'false'}",
                                 f"tile_test.lens_bounds={'true' if lens_bounds else 'false'}",
+                                f"tile_test.gamma='{gamma}'",
                                 f"triangle_setup.backface_culling={'true' if backface_culling else 'false'}"])
     setup = TriangleSetup(arch.triangle_setup, d, tile_size)
     ids = np.arange(d.n, dtype=np.int64)

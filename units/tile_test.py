@@ -104,8 +104,13 @@ def box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ta, tb, ops):
 
 
 @nb.njit(cache=True)
-def _edge_time_interval(edge_h, edge_gamma, tri, x0, x1, y0, y1, lo, hi, ops):
-    """Linearized moving-edge test (002 eq. 8-9); narrows [lo, hi]."""
+def _edge_time_interval(edge_h, edge_gamma, edge_g, edge_fg, gamma_per_tile, tri, x0, x1, y0, y1, lo, hi, ops):
+    """Linearized moving-edge test (002 eq. 8-9); narrows [lo, hi].
+
+    Gamma is the triangle's (eq. 7 over its bounds) or, with
+    ``gamma_per_tile``, recomputed over this tile's extents as 002 suggests,
+    which is tighter: max over the tile of g . s and (f + g) . s.
+    """
     for k in range(3):
         hx = edge_h[tri, k, 0]
         hy = edge_h[tri, k, 1]
@@ -115,6 +120,18 @@ def _edge_time_interval(edge_h, edge_gamma, tri, x0, x1, y0, y1, lo, hi, ops):
         o = hx * sx + hy * sy + hw
         o += 1e-9 * (abs(hx * sx) + abs(hy * sy) + abs(hw))
         gam = edge_gamma[tri, k]
+        if gamma_per_tile:
+            gt = -np.inf
+            mag = 0.0
+            for which in range(2):
+                ax = edge_g[tri, k, 0] if which == 0 else edge_fg[tri, k, 0]
+                ay = edge_g[tri, k, 1] if which == 0 else edge_fg[tri, k, 1]
+                aw = edge_g[tri, k, 2] if which == 0 else edge_fg[tri, k, 2]
+                gt = max(gt, aw + (ax * x1 if ax > 0 else ax * x0) + (ay * y1 if ay > 0 else ay * y0))
+                mag = max(mag, abs(aw) + abs(ax) * max(abs(x0), abs(x1)) + abs(ay) * max(abs(y0), abs(y1)))
+            gam = min(gam, gt + 1e-9 * mag)  # both bound the slope: keep the tighter
+            ops[OP_MADD] += 4
+            ops[OP_CMP] += 6
         ops[OP_MADD] += 2
         ops[OP_CMP] += 3
         if gam > 0.0:
@@ -241,8 +258,10 @@ def plane_w_bounds(plane_n, plane_d, tri, x0, x1, y0, y1, ta, tb, ops):
 
 
 @nb.njit(cache=True)
-def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, bbox, edge_test, lens_bounds, clips,
-                     p0, dp, l0, dl, t_span, flags, edge_h, edge_gamma, plane_n, plane_d, depth_c1, depth_c0,
+def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, bbox, edge_test, gamma_per_tile,
+                     lens_bounds, clips,
+                     p0, dp, l0, dl, t_span, flags, edge_h, edge_gamma, edge_g, edge_fg, plane_n, plane_d,
+                     depth_c1, depth_c0,
                      out_keep, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, ops, events):
     """Test each (triangle, tile) record; fill its intervals and ``out_keep``.
 
@@ -266,7 +285,8 @@ def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, bbox, ed
             events[EV_REJ_BOX] += 1
             continue
         if edge_test and not bbox and (fl & FLAG_EDGE) != 0:
-            lo, hi = _edge_time_interval(edge_h, edge_gamma, tri, x0, x1, y0, y1, lo, hi, ops)
+            lo, hi = _edge_time_interval(edge_h, edge_gamma, edge_g, edge_fg, gamma_per_tile, tri, x0, x1, y0, y1,
+                                         lo, hi, ops)
             if lo > hi:
                 events[EV_REJ_EDGE] += 1
                 continue
@@ -346,10 +366,11 @@ class TileTest:
         events = np.zeros(len(EVENTS), np.int64)
         t = self.table
         tile_test_kernel(tiles["tri"], tiles["tx"], tiles["ty"], self.tile_size, self.width, self.height,
-                         self.config.algorithm == "bbox", self.config.edge_test, self.config.lens_bounds,
+                         self.config.algorithm == "bbox", self.config.edge_test,
+                         self.config.gamma == "tile", self.config.lens_bounds,
                          self.config.clips,
                          t.p0, t.dp, t.l0, t.dl,
-                         t.t_span, t.flags, t.edge_h, t.edge_gamma, t.plane_n, t.plane_d, self.depth_c1,
+                         t.t_span, t.flags, t.edge_h, t.edge_gamma, t.edge_g, t.edge_fg, t.plane_n, t.plane_d, self.depth_c1,
                          self.depth_c0, keep,
                          iv["t_lo"], iv["t_hi"], iv["u_lo"], iv["u_hi"], iv["v_lo"], iv["v_hi"],
                          iv["z_lo"], iv["z_hi"], ops, events)

@@ -71,6 +71,8 @@ class TriangleTable:
     flags: np.ndarray  # (N,) int8: bit0 lens live, bit1 w > 0 all shutter, bit2 edge test valid, bit3 moving
     edge_h: np.ndarray  # (N,3,3) h of each edge, facing-normalized
     edge_gamma: np.ndarray  # (N,3) upper slope bound Gamma per edge
+    edge_g: np.ndarray  # (N,3,3) facing-normalized g of each edge (for Gamma per tile)
+    edge_fg: np.ndarray  # (N,3,3) facing-normalized f + g of each edge
     ref: np.ndarray  # (N,3,3) float32 reference-camera (t=0.5, lens centre) X, Y, W
     edge_eps: np.ndarray  # (N,) float32 error bound of a float32 edge-function value
     plane_n: np.ndarray  # (N,2,3) normals of the triangle's plane at t=0 and t=1 (X, Y, W space)
@@ -87,6 +89,7 @@ class TriangleTable:
             t_span=np.zeros((n, 2), f64), bounds=np.zeros((n, 4), np.int32),
             facing=np.zeros(n, np.int8), flags=np.zeros(n, np.int8),
             edge_h=np.zeros((n, 3, 3), f64), edge_gamma=np.zeros((n, 3), f64),
+            edge_g=np.zeros((n, 3, 3), f64), edge_fg=np.zeros((n, 3, 3), f64),
             ref=np.zeros((n, 3, 3), f32), edge_eps=np.zeros(n, f32),
             plane_n=np.zeros((n, 2, 3), f64), plane_d=np.zeros((n, 2, 2, 2), f64),
         )
@@ -121,7 +124,7 @@ def _det(x0, y0, w0, x1, y1, w1, x2, y2, w2):
 @nb.njit(cache=True)
 def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_culling,
                  p0, dp, l0, dl, p0_32, dp_32, l0_32, dl_32, t_span, bounds, facing, flags,
-                 edge_h, edge_gamma, ref, edge_eps, plane_n, plane_d, depth_planes, status, ops, events):
+                 edge_h, edge_gamma, edge_g, edge_fg, ref, edge_eps, plane_n, plane_d, depth_planes, status, ops, events):
     """Triangle setup for the triangles ``ids`` (PIPELINE §2.1; 002 §3-4, 004 eq. 3-5).
 
     Writes the per-triangle tables in place, ``status`` per batch item and
@@ -392,6 +395,8 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
                 edge_gamma[tri, k] = gam + 1e-9 * mag
                 for c in range(3):
                     edge_h[tri, k, c] = sgn * hv[c]
+                    edge_g[tri, k, c] = sgn * gv[c]
+                    edge_fg[tri, k, c] = sgn * (fv[c] + gv[c])
             fl |= FLAG_EDGE
             ops[OP_MUL] += 3 * 18
             ops[OP_MADD] += 3 * 18
@@ -463,7 +468,7 @@ class TriangleSetup:
         setup_kernel(ids, d.q, d.r, d.lens_x, d.lens_y, d.width, d.height, self.tile_size,
                      self.config.backface_culling, t.p0, t.dp, t.l0, t.dl, t.p0_32, t.dp_32,
                      t.l0_32, t.dl_32, t.t_span, t.bounds, t.facing, t.flags, t.edge_h,
-                     t.edge_gamma, t.ref, t.edge_eps, t.plane_n, t.plane_d, self.draw.depth_w is not None,
+                     t.edge_gamma, t.edge_g, t.edge_fg, t.ref, t.edge_eps, t.plane_n, t.plane_d, self.draw.depth_w is not None,
                      status, ops, events)
         self.last_status = status
         return ids[status == ST_OK], ops, events
