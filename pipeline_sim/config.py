@@ -39,12 +39,15 @@ class PipelineConfig:
     queue_depth: int = 4
     clock_ghz: float = 1.0
     specialize: bool = True
+    sample_pattern: str = "net"
+
 
     def validate(self, where: str) -> None:
         _choice(where, "mode", self.mode, ("standard", "conservative"))
         for name in ("triangles_per_batch", "tiles_per_batch", "samples_per_batch", "queue_depth"):
             _at_least(where, name, getattr(self, name), 1)
         _positive(where, "clock_ghz", self.clock_ghz)
+        _choice(where, "sample_pattern", self.sample_pattern, ("net", "sobol", "stratified", "random"))
 
 
 @dataclass

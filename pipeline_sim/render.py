@@ -58,7 +58,7 @@ class RenderPass:
     texture: np.ndarray | str | None = None
     clear_color: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
     clear_depth: float = 1.0
-    sample_pattern: str = "net"
+    sample_pattern: str | None = None  # None: the architecture's pipeline.sample_pattern
     sample_table: np.ndarray | None = None
 
 
@@ -101,8 +101,9 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     if isinstance(p.texture, str) and textures is None:
         raise UserError(f"pass {p.name}: texture '{p.texture}' needs run_passes")
     spp = 1 if conservative else p.spp
+    pattern = p.sample_pattern or ("table" if p.sample_table is not None else arch.pipeline.sample_pattern)
     samples = make_samples(draw.width, draw.height, spp, p.seed, lens=lens, motion=motion,
-                           pattern=p.sample_pattern, table=p.sample_table)
+                           pattern=pattern, table=p.sample_table)
 
     setup = TriangleSetup(arch.triangle_setup, draw, ts)
     traverser = TileTraverser(arch.tile_traverser, setup.table, ts, draw.width, draw.height,

@@ -59,7 +59,7 @@ __all__ = [
 MAX_SPP = 1 << 16
 #: Fixed-point precision of generated coordinates (float32 mantissa).
 _FRAC_BITS = 24
-_PATTERNS = ("net", "random", "table")
+_PATTERNS = ("net", "random", "stratified", "sobol", "table")
 _LENS_SHAPES = ("disk", "square")
 _TABLE_COLUMNS = ("x", "y", "u", "v", "t")
 _MASK64 = (1 << 64) - 1
@@ -183,6 +183,8 @@ _S_JIT_XY, _S_JIT_T, _S_JIT_AB = 5, 6, 7
 _S_PERM = 10
 _S_RND_X, _S_RND_Y, _S_RND_T, _S_RND_A, _S_RND_B = 11, 12, 13, 14, 15
 _S_ROT = 16
+_S_STRAT = 17  # stratified: jitter streams 17..21, permutation keys 22..25
+_S_SOBOL = 30  # sobol: digital-shift masks per dimension 30..34, jitter 35..39
 
 _JIT = dict(nogil=True, cache=True)
 
@@ -376,6 +378,77 @@ def _random_kernel(p0, lo, hi, spp, seed_key, lens, motion, square, ox, oy, ou, 
                 ov[base + s] = v
 
 
+@numba.njit(**_JIT)
+def _stratified_kernel(p0, lo, hi, spp, seed_key, lens, motion, square, ox, oy, ou, ov, ot):
+    """Jittered stratification: each of t, x, y, a, b has one sample per 1/spp
+    stratum; the strata are paired across dimensions by per-pixel random
+    permutations (Latin hypercube), and the samples come out in t order."""
+    nb = _FRAC_BITS
+    perm = np.empty(spp, dtype=np.int64)
+    strata = np.empty((4, spp), dtype=np.int64)
+    for lp in range(lo, hi):
+        key = _pixel_key(seed_key, p0 + lp)
+        base = lp * spp
+        for d in range(4):  # x, y, a, b: a permutation each, from its own key
+            _shuffle(_mix(key + np.uint64(_S_STRAT + 5 + d)), perm)
+            for i in range(spp):
+                strata[d, i] = perm[i]
+        for s in range(spp):  # sample s lies in t stratum s: already t-ordered
+            jt = _fixed_to_unit(_top_bits(_rand(key, _S_STRAT, s), nb))
+            ot[base + s] = min((s + jt) / spp, _BELOW_ONE) if motion else 0.5
+            jx = _fixed_to_unit(_top_bits(_rand(key, _S_STRAT + 1, s), nb))
+            jy = _fixed_to_unit(_top_bits(_rand(key, _S_STRAT + 2, s), nb))
+            ox[base + s] = min((strata[0, s] + jx) / spp, _BELOW_ONE)
+            oy[base + s] = min((strata[1, s] + jy) / spp, _BELOW_ONE)
+            if lens:
+                ja = _fixed_to_unit(_top_bits(_rand(key, _S_STRAT + 3, s), nb))
+                jb = _fixed_to_unit(_top_bits(_rand(key, _S_STRAT + 4, s), nb))
+                u, v = _lens_point((strata[2, s] + ja) / spp, (strata[3, s] + jb) / spp, square)
+                ou[base + s] = u
+                ov[base + s] = v
+
+
+@numba.njit(**_JIT)
+def _sobol_kernel(p0, lo, hi, spp, m, seed_key, base_pts, lens, motion, square, ox, oy, ou, ov, ot):
+    """The first 2^m points of the 5D Sobol sequence (scipy's direction
+    numbers) with a per-pixel random digital shift (XOR of the top m digits)
+    in each dimension and a jitter inside the finest stratum; sorted by t.
+    ``base_pts`` holds the points' m-digit integer coordinates (x, y, t, a, b)."""
+    nb = _FRAC_BITS
+    tkeys = np.empty(spp, dtype=np.uint64)
+    coords = np.empty((5, spp), dtype=np.float64)
+    for lp in range(lo, hi):
+        key = _pixel_key(seed_key, p0 + lp)
+        base = lp * spp
+        for d in range(5):
+            mask = _top_bits(_rand(key, _S_SOBOL + d, 0), m)
+            for i in range(spp):
+                digit = np.uint64(base_pts[d, i]) ^ mask
+                jit = _top_bits(_rand(key, _S_SOBOL + 5 + d, i), nb - m)
+                coords[d, i] = _fixed_to_unit((digit << np.uint64(nb - m)) | jit)
+        for i in range(spp):
+            tkeys[i] = np.uint64(coords[2, i] * 16777216.0)
+        order = _argsort(tkeys)
+        for s in range(spp):
+            i = order[s]
+            ox[base + s] = coords[0, i]
+            oy[base + s] = coords[1, i]
+            ot[base + s] = coords[2, i] if motion else 0.5
+            if lens:
+                u, v = _lens_point(coords[3, i], coords[4, i], square)
+                ou[base + s] = u
+                ov[base + s] = v
+
+
+def sobol_points(m: int) -> np.ndarray:
+    """(5, 2^m) integer coordinates (m digits) of the first 2^m points of the
+    unscrambled 5D Sobol sequence (scipy.stats.qmc), dimensions x, y, t, a, b."""
+    from scipy.stats import qmc
+
+    pts = qmc.Sobol(d=5, scramble=False).random_base2(m)
+    return np.round(pts.T * (1 << m)).astype(np.int64)
+
+
 _BELOW_ONE = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
 
 
@@ -537,7 +610,9 @@ def make_samples(
 
     pattern ``"net"``: per-pixel scrambled, jittered t-ordered (0, m, 3)-net
     (``spp = 2^m``) with a padded, permuted 2D net on the lens; ``"random"``:
-    uniform samples; ``"table"``: the user's (spp, 5) table (columns x, y, u, v,
+    uniform samples; ``"stratified"``: jittered, one sample per 1/spp stratum
+    of each dimension (Latin hypercube pairing); ``"sobol"``: the 5D Sobol
+    points with a per-pixel digital shift (``spp = 2^m``); ``"table"``: the user's (spp, 5) table (columns x, y, u, v,
     t) in every pixel, optionally Cranley-Patterson rotated per pixel.
     Values depend only on (seed, pixel index, sample index).
     """
@@ -559,8 +634,8 @@ def make_samples(
         raise UserError("sample pattern 'table' needs a table of shape (spp, 5)")
     if pattern != "table" and table is not None:
         raise UserError(f"a sample table was given but pattern is '{pattern}' (use 'table')")
-    if pattern == "net" and spp & (spp - 1):
-        raise UserError(f"spp = {spp} must be a power of two for the 'net' sample pattern")
+    if pattern in ("net", "sobol") and spp & (spp - 1):
+        raise UserError(f"spp = {spp} must be a power of two for the '{pattern}' sample pattern")
     if rows is None:
         r0, r1 = 0, height
     else:
@@ -591,6 +666,13 @@ def make_samples(
                          square, ox, oy, ou, ov, ot)
         elif pattern == "random":
             _run_chunked(_random_kernel, p0, npix, spp, key, lens, motion, square,
+                         ox, oy, ou, ov, ot)
+        elif pattern == "stratified":
+            _run_chunked(_stratified_kernel, p0, npix, spp, key, lens, motion, square,
+                         ox, oy, ou, ov, ot)
+        elif pattern == "sobol":
+            m = spp.bit_length() - 1
+            _run_chunked(_sobol_kernel, p0, npix, spp, m, key, sobol_points(m), lens, motion, square,
                          ox, oy, ou, ov, ot)
         else:
             arr = _validate_table(table, spp)

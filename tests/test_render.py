@@ -280,3 +280,20 @@ def test_user_clip_planes_limit_the_covered_samples():
     red = clipped.image[..., 0]
     assert red.max() <= 1.0  # no covered sample outside the clip box
     assert 0.1 < red.mean() < 0.4  # about half of t times about half of u
+
+
+@pytest.mark.parametrize("pattern", ["sobol", "stratified", "random"])
+def test_every_sample_pattern_converges_to_the_same_image(pattern):
+    """The pattern changes the noise, not the image being estimated: at 64 spp
+    every pattern is close to the net's image, and far closer than at 1 spp."""
+    q, r, lx, color = _blur_scene()
+    draw = draw_from_clip(q, r, lx, lx, color, 40, 28)
+
+    def img(pat, spp):
+        arch = load_arch(overrides=[f"pipeline.sample_pattern='{pat}'", "shading.mode='per_sample'"])
+        return run_pass(RenderPass(draw=draw, arch=arch, spp=spp, seed=2)).image[..., :3]
+
+    ref = img("net", 256)
+    far = np.sqrt(np.mean((img(pattern, 1) - ref) ** 2))
+    near = np.sqrt(np.mean((img(pattern, 64) - ref) ** 2))
+    assert near < far / 3

@@ -403,3 +403,52 @@ def test_speed_small_frame():
     s = make_samples(320, 180, 16, 0, lens=True, motion=True)
     assert time.perf_counter() - start < 1.0
     assert len(s.x) == 320 * 180 * 16
+
+
+# --------------------------------------------------------------------------- #
+# stratified and Sobol alternatives
+# --------------------------------------------------------------------------- #
+@pytest.mark.parametrize("spp", [1, 3, 8, 16])
+def test_stratified_pattern_one_sample_per_stratum_per_dimension(spp):
+    s = make_samples(6, 5, spp, 7, lens=True, motion=True, pattern="stratified", lens_shape="square")
+    for dim in (s.x, s.y, s.t, (s.u + 1) / 2, (s.v + 1) / 2):
+        strata = np.floor(dim.astype(np.float64) * spp).astype(int).reshape(-1, spp)
+        for row in strata:
+            assert sorted(row) == list(range(spp))
+    assert np.all(np.diff(s.t.reshape(-1, spp), axis=1) >= 0)
+
+
+@pytest.mark.parametrize("m", [0, 2, 4, 6])
+def test_sobol_pattern_keeps_the_net_strata(m):
+    """A digital shift keeps Sobol's stratification: every 1D projection has one
+    point per 1/2^m stratum and (x, y) is a (0, m, 2)-net, in every pixel."""
+    spp = 1 << m
+    s = make_samples(4, 3, spp, 11, lens=True, motion=True, pattern="sobol", lens_shape="square")
+    for p in range(12):
+        sl = slice(p * spp, (p + 1) * spp)
+        ix = np.floor(s.x[sl].astype(np.float64) * spp).astype(int)
+        iy = np.floor(s.y[sl].astype(np.float64) * spp).astype(int)
+        it = np.floor(s.t[sl].astype(np.float64) * spp).astype(int)
+        assert sorted(ix) == sorted(iy) == sorted(it) == list(range(spp))
+        for k in range(m + 1):
+            cells = (ix >> (m - k)) * (1 << (m - k)) + (iy >> k)
+            assert len(set(cells.tolist())) == spp
+        assert np.all(np.diff(s.t[sl]) >= 0)
+
+
+def test_sobol_pattern_needs_power_of_two():
+    with pytest.raises(UserError, match="power of two"):
+        make_samples(2, 2, 6, 0, lens=False, motion=True, pattern="sobol")
+
+
+def test_discrepancy_ranks_the_patterns():
+    """scipy's L2-star discrepancy of (x, y, t) per pixel: the nets beat uniform random."""
+    from scipy.stats import qmc
+
+    def mean_disc(pattern):
+        s = make_samples(8, 8, 16, 5, lens=False, motion=True, pattern=pattern)
+        pts = np.stack([s.x, s.y, s.t], axis=1).astype(np.float64).reshape(-1, 16, 3)
+        return np.mean([qmc.discrepancy(p) for p in pts])
+
+    d = {p: mean_disc(p) for p in ("net", "sobol", "stratified", "random")}
+    assert d["net"] < d["random"] / 3 and d["sobol"] < d["random"] / 3 and d["stratified"] < d["random"]
