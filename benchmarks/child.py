@@ -2,6 +2,8 @@
 
     python -m benchmarks.child point '<json spec>'   one scaling point
     python -m benchmarks.child compile                time warm_up() (set NUMBA_CACHE_DIR first)
+    python -m benchmarks.child frame '<json spec>'    one 1080p frame under time / memory limits
+                                                      (benchmarks/frame.py)
 
 Each prints one JSON object as its last line of output.
 """
@@ -115,6 +117,9 @@ def main(argv: list[str]) -> None:
         out = compile_point()
     elif argv[0] == "point":
         out = scaling_point(json.loads(argv[1]))
+    elif argv[0] == "frame":
+        from benchmarks.frame import frame_point
+        out = frame_point(json.loads(argv[1]))
     else:
         raise SystemExit(f"unknown command {argv[0]!r}")
     print(json.dumps(out))

@@ -23,6 +23,7 @@ swap them for the duration of one call and restore them afterwards.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import time
 from collections import defaultdict, deque
 
@@ -93,7 +94,11 @@ def recording(script: Script):
 def _empty_timing() -> TimingResult:
     units = pd.DataFrame(columns=["unit", "busy", "starved", "blocked", "batches", "utilization"])
     queues = pd.DataFrame(columns=["channel", "depth", "mean_occupancy", "peak_occupancy"])
-    return TimingResult(0.0, units, queues, {})
+    # the remaining fields (traces, queue_series, ...) are per-unit / per-channel dicts
+    kw = {"frame_cycles": 0.0, "units": units, "queues": queues}
+    for f in dataclasses.fields(TimingResult):
+        kw.setdefault(f.name, {})
+    return TimingResult(**kw)
 
 
 @contextlib.contextmanager

@@ -9,9 +9,10 @@ few repeats, and the figures worth comparing are the ratios measured in the
 same run. Next to each wall time the process CPU time (``time.process_time``)
 is given too: everything measured is single-threaded, so on an idle machine
 the two agree, and when other jobs compete for the two cores the CPU time is
-the steadier of the two. ``--quick`` (about 1.5 minutes, half of it the cold
-compile) uses fewer repeats and smaller scaling sweeps; the default (about
-4 minutes on an idle 2-core machine) is the full run.
+the steadier of the two. ``--quick`` (about 2 minutes, a good part of it the
+cold compile) uses fewer repeats, smaller sweeps and a tiny stand-in for the
+1080p frame; the default (about 12 minutes on an idle 2-core machine, 7 of
+them the 1080p frame of section 7) is the full run.
 
 The figures, all for the default workload (workloads/scenes/default.toml)
 unless said otherwise:
@@ -66,6 +67,30 @@ unless said otherwise:
    subprocess with ``NUMBA_CACHE_DIR`` pointing at an empty temporary folder
    (cold: every kernel compiles), then in a second fresh subprocess with the
    same folder (the kernels load from numba's cache).
+
+5. Specialization cost (benchmarks/specialization.py): static.toml (xy),
+   motion.toml (xyt), defocus.toml (xyuv) and default.toml (xyuvt), one
+   geometry, plus the static scene forced through the general 5D path:
+   samples tested, sample-tester madd/mul per tested sample, frame cycles,
+   wall time and ratios to static. Writes ``specialization.csv``.
+
+6. Batch size as an accuracy knob (benchmarks/batching.py): the default
+   workload at tiles_per_batch 16 .. 2048 (samples_per_batch = 64 x tiles)
+   and triangles_per_batch 8 .. 256: frame cycles, their change against the
+   smallest batch, wall time, and bit-identity of image and depth. Writes
+   ``batch.csv``.
+
+7. The 1080p frame (benchmarks/frame.py): 250,000 then 1,000,000 random
+   small moving, defocused triangles at 1920x1080, 16 spp, each size in a
+   fresh process limited to 480 s and a 12 GiB address space: wall time,
+   peak RSS (VmHWM), frame cycles and how memory divides; a size that does
+   not finish is reported with the reason. ``--quick`` runs a tiny stand-in
+   (4,000 triangles at 480x270). Writes ``frame.csv``. This section alone
+   takes about 8 minutes of the full run.
+
+``--only SECTION[,SECTION]`` runs some sections only (default, scaling,
+compile, specialization, batch, frame; "default" is 0-2);
+``--frame-triangles N[,N]`` changes the frame section's sizes.
 """
 
 from __future__ import annotations
@@ -95,13 +120,25 @@ FULL = {
     "tris": {"n": [500, 1000, 2000, 4000, 8000, 16000], "width": 320, "height": 180, "spp": 8},
     "pixels": {"sizes": [(80, 45), (160, 90), (320, 180), (640, 360)], "spp": 16},
     "spp": {"spp": [1, 2, 4, 8, 16, 32], "width": 320, "height": 180},
+    "spec_repeats": 3, "spec_instrumented": 2,
+    "batch_tiles": [16, 32, 64, 128, 256, 512, 2048], "batch_triangles": [8, 16, 32, 64, 128, 256],
+    "batch_repeats": 2,
+    "frame": {"n": [250_000, 1_000_000], "width": 1920, "height": 1080, "spp": 16,
+              "time_limit_s": 480, "mem_limit_gib": 12},
 }
 QUICK = {
     "pairs": 3, "instrumented": 1, "simpy_only": 3, "micro_repeats": 5, "scaling_repeats": 1,
     "tris": {"n": [500, 2000, 8000], "width": 160, "height": 90, "spp": 4},
     "pixels": {"sizes": [(80, 45), (160, 90), (320, 180)], "spp": 4},
     "spp": {"spp": [1, 4, 16], "width": 160, "height": 90},
+    "spec_repeats": 1, "spec_instrumented": 1,
+    "batch_tiles": [32, 2048], "batch_triangles": [8, 256],
+    "batch_repeats": 1,
+    # a tiny stand-in for the 1080p frame (same triangles, 1/16 of the pixels)
+    "frame": {"n": [4_000], "width": 480, "height": 270, "spp": 16, "time_limit_s": 120, "mem_limit_gib": 12},
 }
+# sections in the order they run; --only picks some
+SECTIONS = ("default", "scaling", "compile", "specialization", "batch", "frame")
 
 
 def log(msg: str) -> None:
@@ -416,7 +453,7 @@ def table(rows: list[tuple], headers: tuple) -> str:
 
 
 def report(results: dict) -> tuple[str, list[dict]]:
-    d = results["default"]
+    d = results.get("default")
     rows_csv: list[dict] = []
 
     def add(section, metric, value, unit="", note=""):
@@ -433,135 +470,144 @@ def report(results: dict) -> tuple[str, list[dict]]:
         out.append("WARNING: the simulator's sources changed while the benchmark ran; "
                    "points measured in different processes may not be comparable.")
     out.append("")
-    out.append(f"Default workload {d['scene']}: {d['width']}x{d['height']}, {d['spp']} spp, {d['triangles']:,} triangles")
-    n = len(d["pipeline_times_s"])
-    rows = [
-        ("frame cycles", f"{d['frame_cycles']:,.0f}", "simulated"),
-        ("STE", f"{100 * d['ste']:.2f} %", f"{d['samples_covered']:,} covered / {d['samples_tested']:,} tested"),
-        ("wall time per pass", f"{d['pipeline_median_s']:.3f} s",
-         f"median of {n}; CPU time {d['pipeline_cpu_median_s']:.3f} s"),
-    ]
-    out.append(table(rows, ("figure", "value", "note")))
-    add("default", "frame_cycles", d["frame_cycles"], "cycles")
-    add("default", "ste", d["ste"], "ratio", "samples_covered / samples_tested")
-    add("default", "samples_tested", d["samples_tested"], "tests")
-    add("default", "wall_time_per_pass", d["pipeline_median_s"], "s", f"median of {n}")
-    add("default", "cpu_time_per_pass", d["pipeline_cpu_median_s"], "s", f"median of {n}")
+    if "default" in results:
+        out.append(f"Default workload {d['scene']}: {d['width']}x{d['height']}, {d['spp']} spp, {d['triangles']:,} triangles")
+        n = len(d["pipeline_times_s"])
+        rows = [
+            ("frame cycles", f"{d['frame_cycles']:,.0f}", "simulated"),
+            ("STE", f"{100 * d['ste']:.2f} %", f"{d['samples_covered']:,} covered / {d['samples_tested']:,} tested"),
+            ("wall time per pass", f"{d['pipeline_median_s']:.3f} s",
+             f"median of {n}; CPU time {d['pipeline_cpu_median_s']:.3f} s"),
+        ]
+        out.append(table(rows, ("figure", "value", "note")))
+        add("default", "frame_cycles", d["frame_cycles"], "cycles")
+        add("default", "ste", d["ste"], "ratio", "samples_covered / samples_tested")
+        add("default", "samples_tested", d["samples_tested"], "tests")
+        add("default", "wall_time_per_pass", d["pipeline_median_s"], "s", f"median of {n}")
+        add("default", "cpu_time_per_pass", d["pipeline_cpu_median_s"], "s", f"median of {n}")
 
-    out.append("")
-    out.append("1. Sample tests per second (same number of tests, same process; CPU-time rates in brackets)")
-    mic = d["micro"]
-    rows = [
-        ("pipeline SampleTester.run", fmt_rate(d["tester_rate"]), f"({fmt_rate(d['tester_rate_cpu'])})",
-         f"{d['samples_tested']:,} tests in {d['tester_run_s']:.3f} s"),
-        ("pipeline kernel call only", fmt_rate(d["tester_kernel_rate"]), "", f"{d['tester_kernel_s']:.3f} s"),
-        ("bare micro-kernel", fmt_rate(d["micro_rate"]), f"({fmt_rate(d['micro_rate_cpu'])})",
-         f"{mic['tests']:,} tests in {mic['median_s']:.4f} s, {mic['samples_per_triangle']} samples/triangle"),
-        ("gap micro / pipeline", f"{d['micro_over_pipeline']:.1f}x", f"({d['micro_over_pipeline_cpu']:.1f}x)",
-         f"{d['micro_over_pipeline_kernel']:.1f}x against the kernel call alone"),
-    ]
-    out.append(table(rows, ("rate", "tests/s", "CPU", "note")))
-    add("sample_tests", "pipeline_sample_tester_rate", d["tester_rate"], "tests/s", "samples_tested / SampleTester.run wall time")
-    add("sample_tests", "pipeline_sample_tester_rate_cpu", d["tester_rate_cpu"], "tests/s", "samples_tested / SampleTester.run CPU time")
-    add("sample_tests", "pipeline_kernel_rate", d["tester_kernel_rate"], "tests/s", "samples_tested / kernel call wall time")
-    add("sample_tests", "micro_kernel_rate", d["micro_rate"], "tests/s", "bare float32 SoA 5D kernel, one core")
-    add("sample_tests", "micro_kernel_rate_cpu", d["micro_rate_cpu"], "tests/s", "CPU time")
-    add("sample_tests", "micro_over_pipeline", d["micro_over_pipeline"], "ratio", "wall-time rates")
-    add("sample_tests", "micro_over_pipeline_cpu", d["micro_over_pipeline_cpu"], "ratio", "CPU-time rates")
-
-    out.append("")
-    out.append(f"2. SimPy layer share of a pass (target under 10%; {n} alternating pairs, wall and CPU time)")
-    sw, sc = d["simpy_share_wall"], d["simpy_share_cpu"]
-    rows = [
-        ("pipeline (run_pass)", f"{d['pipeline_median_s']:.3f} s", f"{d['pipeline_cpu_median_s']:.3f} s", "median"),
-        ("direct loop, same steps", f"{d['direct_median_s']:.3f} s", f"{d['direct_cpu_median_s']:.3f} s",
-         f"median; {d['stage_visits']} stage visits replayed in SimPy's order"),
-        ("(pipeline - direct) / pipeline", f"{100 * sw['medians']:.1f} %", f"{100 * sc['medians']:.1f} %",
-         f"from medians; from minima {100 * sw['minima']:.1f} % / {100 * sc['minima']:.1f} % (wall / CPU)"),
-        ("SimPy layer timed alone", f"{1e3 * d['simpy_only_median_s']:.1f} ms", f"{1e3 * d['simpy_only_cpu_median_s']:.1f} ms",
-         f"= {100 * d['simpy_only_share']:.2f} % of a pass; {d['simpy_us_per_stage_visit']:.1f} us per stage visit"),
-    ]
-    out.append(table(rows, ("figure", "wall", "CPU", "note")))
-    rows = [
-        ("identical image, direct loop", "yes" if d["identical_image_direct"] else "NO",
-         "counters identical too" if d["identical_counters_direct"] else "counters differ"),
-        ("identical image, depth-first loop", "yes" if d["identical_image_depth_first"] else "NO",
-         f"{len(d['counter_diffs_depth_first'])} counters differ" if d["counter_diffs_depth_first"]
-         else "counters identical too"),
-    ]
-    out.append(table(rows, ("check", "", "note")))
-    if d["counter_diffs_depth_first"]:
-        out.append("  SimPy vs depth-first order, e.g. " + "; ".join(d["counter_diffs_depth_first"][:3]))
-    add("simpy", "pipeline_median", d["pipeline_median_s"], "s")
-    add("simpy", "direct_median", d["direct_median_s"], "s")
-    add("simpy", "share_wall_medians", sw["medians"], "ratio", "(pipeline - direct) / pipeline, wall-time medians")
-    add("simpy", "share_wall_minima", sw["minima"], "ratio", "same, from minima")
-    add("simpy", "share_cpu_medians", sc["medians"], "ratio", "same, CPU-time medians")
-    add("simpy", "share_timed_alone", d["simpy_only_share"], "ratio", "simulate() with do-nothing steps / pipeline")
-    add("simpy", "identical_image_direct", int(d["identical_image_direct"]), "bool")
-    add("simpy", "identical_image_depth_first", int(d["identical_image_depth_first"]), "bool")
-
-    out.append("")
-    out.append(f"   Where a pass goes (instrumented SimPy runs, median of {results['config']['instrumented']}; "
-               f"pass {d['instrumented_total_s']:.3f} s wall, {d['instrumented_total_cpu_s']:.3f} s CPU)")
-    rows = [(u["part"], f"{u['seconds']:.3f} s", f"{100 * u['share']:.1f} %", f"{100 * u['cpu_share']:.1f} %",
-             u["calls"] or "") for u in d["units"]]
-    out.append(table(rows, ("part", "wall", "share", "CPU share", "calls")))
-    out.append("")
-    out.append("3. Scaling (each point in a fresh process; time = median run_pass wall / CPU time; peak RSS = VmHWM,")
-    out.append("   the kernel high-water mark behind ru_maxrss, reset after imports, warm-up and scene building; RSS growth")
-    out.append("   = peak RSS - RSS before the runs; traced peak = tracemalloc peak (Python + numpy buffers) of one run)")
-    sc = results["scaling"]
-    labels = {"triangles": "triangles (random small moving defocused, {w}x{h}, {spp} spp)",
-              "pixels": "pixels (default scene, {spp} spp)", "spp": "spp (default scene, {w}x{h})"}
-    for name, s in sc.items():
-        pts = s["points"]
-        p0 = pts[0]
-        out.append("  " + labels[name].format(w=p0.get("width"), h=p0.get("height"), spp=p0.get("spp")))
-        rows = []
-        for pt in pts:
-            xlab = {"triangles": f"{pt['x']:,}", "pixels": f"{pt['width']}x{pt['height']}", "spp": f"{pt['x']}"}[name]
-            if "error" in pt:
-                rows.append((xlab, "error", "", "", "", "", "", str(pt["error"])[:60]))
-                continue
-            rows.append((xlab, f"{pt['median_s']:.3f} s", f"{pt['cpu_median_s']:.3f} s",
-                         f"{pt['rss_peak_mb']:.0f} MB", f"{pt['rss_growth_mb']:.0f} MB",
-                         f"{pt['traced_peak_mb']:.1f} MB", f"{pt['samples_tested']:,}",
-                         f"{1e9 * pt['median_s'] / max(1, pt['samples_tested']):.0f} ns"))
-            add(f"scaling_{name}", f"time_s@{xlab}", pt["median_s"], "s")
-            add(f"scaling_{name}", f"cpu_s@{xlab}", pt["cpu_median_s"], "s")
-            add(f"scaling_{name}", f"rss_peak_mb@{xlab}", pt["rss_peak_mb"], "MB")
-            add(f"scaling_{name}", f"traced_peak_mb@{xlab}", pt["traced_peak_mb"], "MB")
-        out.append(table(rows, (name, "time", "CPU", "peak RSS", "RSS growth", "traced peak", "samples tested",
-                                "time/test")))
-        out.append(f"  log-log slope over {s['range']:.0f}x: time {s['slope_time']:.2f} (CPU {s['slope_cpu_time']:.2f}), "
-                   f"traced peak {s['slope_traced_peak']:.2f}, RSS growth {s['slope_rss_growth']:.2f}, "
-                   f"samples tested {s['slope_samples_tested']:.2f}")
         out.append("")
-        add(f"scaling_{name}", "slope_time", s["slope_time"], "log-log")
-        add(f"scaling_{name}", "slope_cpu_time", s["slope_cpu_time"], "log-log")
-        add(f"scaling_{name}", "slope_traced_peak", s["slope_traced_peak"], "log-log")
-        add(f"scaling_{name}", "slope_rss_growth", s["slope_rss_growth"], "log-log")
-        add(f"scaling_{name}", "slope_samples_tested", s["slope_samples_tested"], "log-log")
+        out.append("1. Sample tests per second (same number of tests, same process; CPU-time rates in brackets)")
+        mic = d["micro"]
+        rows = [
+            ("pipeline SampleTester.run", fmt_rate(d["tester_rate"]), f"({fmt_rate(d['tester_rate_cpu'])})",
+             f"{d['samples_tested']:,} tests in {d['tester_run_s']:.3f} s"),
+            ("pipeline kernel call only", fmt_rate(d["tester_kernel_rate"]), "", f"{d['tester_kernel_s']:.3f} s"),
+            ("bare micro-kernel", fmt_rate(d["micro_rate"]), f"({fmt_rate(d['micro_rate_cpu'])})",
+             f"{mic['tests']:,} tests in {mic['median_s']:.4f} s, {mic['samples_per_triangle']} samples/triangle"),
+            ("gap micro / pipeline", f"{d['micro_over_pipeline']:.1f}x", f"({d['micro_over_pipeline_cpu']:.1f}x)",
+             f"{d['micro_over_pipeline_kernel']:.1f}x against the kernel call alone"),
+        ]
+        out.append(table(rows, ("rate", "tests/s", "CPU", "note")))
+        add("sample_tests", "pipeline_sample_tester_rate", d["tester_rate"], "tests/s", "samples_tested / SampleTester.run wall time")
+        add("sample_tests", "pipeline_sample_tester_rate_cpu", d["tester_rate_cpu"], "tests/s", "samples_tested / SampleTester.run CPU time")
+        add("sample_tests", "pipeline_kernel_rate", d["tester_kernel_rate"], "tests/s", "samples_tested / kernel call wall time")
+        add("sample_tests", "micro_kernel_rate", d["micro_rate"], "tests/s", "bare float32 SoA 5D kernel, one core")
+        add("sample_tests", "micro_kernel_rate_cpu", d["micro_rate_cpu"], "tests/s", "CPU time")
+        add("sample_tests", "micro_over_pipeline", d["micro_over_pipeline"], "ratio", "wall-time rates")
+        add("sample_tests", "micro_over_pipeline_cpu", d["micro_over_pipeline_cpu"], "ratio", "CPU-time rates")
 
-    cp = results["compile"]
-    out.append("4. First-run compile time of pipeline_sim.jit.warm_up() (fresh processes, temporary NUMBA_CACHE_DIR)")
-    rows = []
-    for key, label in (("cold", "cold (empty cache, compiles)"), ("cached", "second process (cache load)")):
-        r = cp[key]
-        if "error" in r:
-            rows.append((label, "error", str(r["error"])[:60], "", ""))
-        else:
-            rows.append((label, f"{r['warm_up_s']:.2f} s", f"{r['import_s']:.2f} s", f"{r['process_wall_s']:.2f} s",
-                         f"{r['peak_rss_mb']:.0f} MB"))
-            add("compile", f"warm_up_{key}", r["warm_up_s"], "s")
-            add("compile", f"process_wall_{key}", r["process_wall_s"], "s")
-    out.append(table(rows, ("run", "warm_up()", "imports", "whole process", "peak RSS")))
-    if "error" not in cp["cold"] and "error" not in cp["cached"]:
-        out.append(f"  cold / cached warm_up: {cp['cold']['warm_up_s'] / max(1e-9, cp['cached']['warm_up_s']):.0f}x; "
-                   f"{cp['cache_files']} cache files written")
-    out.append("")
-    out.append(f"total benchmark time {results['elapsed_s']:.0f} s")
+        out.append("")
+        out.append(f"2. SimPy layer share of a pass (target under 10%; {n} alternating pairs, wall and CPU time)")
+        sw, sc = d["simpy_share_wall"], d["simpy_share_cpu"]
+        rows = [
+            ("pipeline (run_pass)", f"{d['pipeline_median_s']:.3f} s", f"{d['pipeline_cpu_median_s']:.3f} s", "median"),
+            ("direct loop, same steps", f"{d['direct_median_s']:.3f} s", f"{d['direct_cpu_median_s']:.3f} s",
+             f"median; {d['stage_visits']} stage visits replayed in SimPy's order"),
+            ("(pipeline - direct) / pipeline", f"{100 * sw['medians']:.1f} %", f"{100 * sc['medians']:.1f} %",
+             f"from medians; from minima {100 * sw['minima']:.1f} % / {100 * sc['minima']:.1f} % (wall / CPU)"),
+            ("SimPy layer timed alone", f"{1e3 * d['simpy_only_median_s']:.1f} ms", f"{1e3 * d['simpy_only_cpu_median_s']:.1f} ms",
+             f"= {100 * d['simpy_only_share']:.2f} % of a pass; {d['simpy_us_per_stage_visit']:.1f} us per stage visit"),
+        ]
+        out.append(table(rows, ("figure", "wall", "CPU", "note")))
+        rows = [
+            ("identical image, direct loop", "yes" if d["identical_image_direct"] else "NO",
+             "counters identical too" if d["identical_counters_direct"] else "counters differ"),
+            ("identical image, depth-first loop", "yes" if d["identical_image_depth_first"] else "NO",
+             f"{len(d['counter_diffs_depth_first'])} counters differ" if d["counter_diffs_depth_first"]
+             else "counters identical too"),
+        ]
+        out.append(table(rows, ("check", "", "note")))
+        if d["counter_diffs_depth_first"]:
+            out.append("  SimPy vs depth-first order, e.g. " + "; ".join(d["counter_diffs_depth_first"][:3]))
+        add("simpy", "pipeline_median", d["pipeline_median_s"], "s")
+        add("simpy", "direct_median", d["direct_median_s"], "s")
+        add("simpy", "share_wall_medians", sw["medians"], "ratio", "(pipeline - direct) / pipeline, wall-time medians")
+        add("simpy", "share_wall_minima", sw["minima"], "ratio", "same, from minima")
+        add("simpy", "share_cpu_medians", sc["medians"], "ratio", "same, CPU-time medians")
+        add("simpy", "share_timed_alone", d["simpy_only_share"], "ratio", "simulate() with do-nothing steps / pipeline")
+        add("simpy", "identical_image_direct", int(d["identical_image_direct"]), "bool")
+        add("simpy", "identical_image_depth_first", int(d["identical_image_depth_first"]), "bool")
+
+        out.append("")
+        out.append(f"   Where a pass goes (instrumented SimPy runs, median of {results['config']['instrumented']}; "
+                   f"pass {d['instrumented_total_s']:.3f} s wall, {d['instrumented_total_cpu_s']:.3f} s CPU)")
+        rows = [(u["part"], f"{u['seconds']:.3f} s", f"{100 * u['share']:.1f} %", f"{100 * u['cpu_share']:.1f} %",
+                 u["calls"] or "") for u in d["units"]]
+        out.append(table(rows, ("part", "wall", "share", "CPU share", "calls")))
+    if "scaling" in results:
+        out.append("")
+        out.append("3. Scaling (each point in a fresh process; time = median run_pass wall / CPU time; peak RSS = VmHWM,")
+        out.append("   the kernel high-water mark behind ru_maxrss, reset after imports, warm-up and scene building; RSS growth")
+        out.append("   = peak RSS - RSS before the runs; traced peak = tracemalloc peak (Python + numpy buffers) of one run)")
+        sc = results["scaling"]
+        labels = {"triangles": "triangles (random small moving defocused, {w}x{h}, {spp} spp)",
+                  "pixels": "pixels (default scene, {spp} spp)", "spp": "spp (default scene, {w}x{h})"}
+        for name, s in sc.items():
+            pts = s["points"]
+            p0 = pts[0]
+            out.append("  " + labels[name].format(w=p0.get("width"), h=p0.get("height"), spp=p0.get("spp")))
+            rows = []
+            for pt in pts:
+                xlab = {"triangles": f"{pt['x']:,}", "pixels": f"{pt['width']}x{pt['height']}", "spp": f"{pt['x']}"}[name]
+                if "error" in pt:
+                    rows.append((xlab, "error", "", "", "", "", "", str(pt["error"])[:60]))
+                    continue
+                rows.append((xlab, f"{pt['median_s']:.3f} s", f"{pt['cpu_median_s']:.3f} s",
+                             f"{pt['rss_peak_mb']:.0f} MB", f"{pt['rss_growth_mb']:.0f} MB",
+                             f"{pt['traced_peak_mb']:.1f} MB", f"{pt['samples_tested']:,}",
+                             f"{1e9 * pt['median_s'] / max(1, pt['samples_tested']):.0f} ns"))
+                add(f"scaling_{name}", f"time_s@{xlab}", pt["median_s"], "s")
+                add(f"scaling_{name}", f"cpu_s@{xlab}", pt["cpu_median_s"], "s")
+                add(f"scaling_{name}", f"rss_peak_mb@{xlab}", pt["rss_peak_mb"], "MB")
+                add(f"scaling_{name}", f"traced_peak_mb@{xlab}", pt["traced_peak_mb"], "MB")
+            out.append(table(rows, (name, "time", "CPU", "peak RSS", "RSS growth", "traced peak", "samples tested",
+                                    "time/test")))
+            out.append(f"  log-log slope over {s['range']:.0f}x: time {s['slope_time']:.2f} (CPU {s['slope_cpu_time']:.2f}), "
+                       f"traced peak {s['slope_traced_peak']:.2f}, RSS growth {s['slope_rss_growth']:.2f}, "
+                       f"samples tested {s['slope_samples_tested']:.2f}")
+            out.append("")
+            add(f"scaling_{name}", "slope_time", s["slope_time"], "log-log")
+            add(f"scaling_{name}", "slope_cpu_time", s["slope_cpu_time"], "log-log")
+            add(f"scaling_{name}", "slope_traced_peak", s["slope_traced_peak"], "log-log")
+            add(f"scaling_{name}", "slope_rss_growth", s["slope_rss_growth"], "log-log")
+            add(f"scaling_{name}", "slope_samples_tested", s["slope_samples_tested"], "log-log")
+
+    if "compile" in results:
+        cp = results["compile"]
+        out.append("4. First-run compile time of pipeline_sim.jit.warm_up() (fresh processes, temporary NUMBA_CACHE_DIR)")
+        rows = []
+        for key, label in (("cold", "cold (empty cache, compiles)"), ("cached", "second process (cache load)")):
+            r = cp[key]
+            if "error" in r:
+                rows.append((label, "error", str(r["error"])[:60], "", ""))
+            else:
+                rows.append((label, f"{r['warm_up_s']:.2f} s", f"{r['import_s']:.2f} s", f"{r['process_wall_s']:.2f} s",
+                             f"{r['peak_rss_mb']:.0f} MB"))
+                add("compile", f"warm_up_{key}", r["warm_up_s"], "s")
+                add("compile", f"process_wall_{key}", r["process_wall_s"], "s")
+        out.append(table(rows, ("run", "warm_up()", "imports", "whole process", "peak RSS")))
+        if "error" not in cp["cold"] and "error" not in cp["cached"]:
+            out.append(f"  cold / cached warm_up: {cp['cold']['warm_up_s'] / max(1e-9, cp['cached']['warm_up_s']):.0f}x; "
+                       f"{cp['cache_files']} cache files written")
+        out.append("")
+    from benchmarks import batching, frame, specialization
+    for key, mod in (("specialization", specialization), ("batch", batching), ("frame", frame)):
+        if key in results:
+            out.extend(mod.report(results[key], table, add))
+            out.append("")
+    out.append(f"total benchmark time {results['elapsed_s']:.0f} s"
+               + (f" (sections: {', '.join(results['sections'])})" if results["sections"] != list(SECTIONS) else ""))
     return "\n".join(out), rows_csv
 
 
@@ -582,9 +628,22 @@ def to_jsonable(o):
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.run", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="bench-results", help="folder for results.json / *.csv (created)")
-    ap.add_argument("--quick", action="store_true", help="about 1.5 minutes: fewer repeats, smaller sweeps")
+    ap.add_argument("--quick", action="store_true", help="about 2 minutes: fewer repeats, smaller sweeps")
+    ap.add_argument("--only", metavar="SECTION[,SECTION]",
+                    help=f"run only these sections ({', '.join(SECTIONS)}); default: all")
+    ap.add_argument("--frame-triangles", metavar="N[,N]",
+                    help="triangle counts of the frame section, tried in order (default 250000,1000000; quick 4000)")
     args = ap.parse_args(argv)
-    cfg = QUICK if args.quick else FULL
+    cfg = json.loads(json.dumps(QUICK if args.quick else FULL))  # a copy
+    sections = list(SECTIONS)
+    if args.only:
+        sections = [x.strip() for x in args.only.split(",") if x.strip()]
+        bad = [x for x in sections if x not in SECTIONS]
+        if bad:
+            ap.error(f"--only: unknown section(s) {', '.join(bad)}; known: {', '.join(SECTIONS)}")
+        sections = [x for x in SECTIONS if x in sections]
+    if args.frame_triangles:
+        cfg["frame"]["n"] = [int(x.replace("_", "")) for x in args.frame_triangles.split(",")]
     start = time.perf_counter()
     outdir = Path(args.out).resolve()
     os.chdir(ROOT)
@@ -592,7 +651,7 @@ def main(argv: list[str] | None = None) -> int:
 
     results: dict = {"mode": "quick" if args.quick else "full",
                      "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
-                     "config": cfg, "source_digest_start": source_digest()}
+                     "config": cfg, "sections": sections, "source_digest_start": source_digest()}
     results["machine"] = machine_info()
     results["packages"] = package_versions()
 
@@ -602,9 +661,21 @@ def main(argv: list[str] | None = None) -> int:
     from pipeline_sim.jit import warm_up
     results["parent_warm_up_s"] = warm_up()
 
-    results["default"] = bench_default(cfg)
-    results["scaling"] = bench_scaling(cfg)
-    results["compile"] = bench_compile()
+    if "default" in sections:
+        results["default"] = bench_default(cfg)
+    if "scaling" in sections:
+        results["scaling"] = bench_scaling(cfg)
+    if "compile" in sections:
+        results["compile"] = bench_compile()
+    if "specialization" in sections:
+        from benchmarks import specialization
+        results["specialization"] = specialization.bench(cfg, log)
+    if "batch" in sections:
+        from benchmarks import batching
+        results["batch"] = batching.bench(cfg, log)
+    if "frame" in sections:
+        from benchmarks import frame
+        results["frame"] = frame.bench(cfg, log)
     results["machine"]["load_average_end"] = os.getloadavg()
     results["source_digest_end"] = source_digest()
     results["elapsed_s"] = time.perf_counter() - start
@@ -616,20 +687,53 @@ def main(argv: list[str] | None = None) -> int:
         w = csv.DictWriter(f, fieldnames=["section", "metric", "value", "unit", "note"])
         w.writeheader()
         w.writerows(rows)
-    with open(outdir / "units.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=["part", "seconds", "share", "cpu_seconds", "cpu_share", "calls"])
-        w.writeheader()
-        w.writerows(results["default"]["units"])
-    with open(outdir / "scaling.csv", "w", newline="") as f:
-        fields = ["sweep", "x", "kind", "n", "triangles", "width", "height", "spp", "repeats", "median_s", "cpu_median_s",
-                  "rss_baseline_mb", "peak_reset", "rss_peak_mb", "rss_growth_mb", "traced_peak_mb", "samples_tested",
-                  "samples_covered", "frame_cycles", "process_wall_s", "error"]
-        w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
-        w.writeheader()
-        for name, s in results["scaling"].items():
-            for pt in s["points"]:
-                w.writerow({"sweep": name, **pt})
-    print(f"results written to {outdir}/ (results.json, results.csv, units.csv, scaling.csv)")
+    written = ["results.json", "results.csv"]
+    if "default" in results:
+        with open(outdir / "units.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=["part", "seconds", "share", "cpu_seconds", "cpu_share", "calls"])
+            w.writeheader()
+            w.writerows(results["default"]["units"])
+        written.append("units.csv")
+    if "scaling" in results:
+        with open(outdir / "scaling.csv", "w", newline="") as f:
+            fields = ["sweep", "x", "kind", "n", "triangles", "width", "height", "spp", "repeats", "median_s",
+                      "cpu_median_s", "rss_baseline_mb", "peak_reset", "rss_peak_mb", "rss_growth_mb", "traced_peak_mb",
+                      "samples_tested", "samples_covered", "frame_cycles", "process_wall_s", "error"]
+            w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
+            w.writeheader()
+            for name, s in results["scaling"].items():
+                for pt in s["points"]:
+                    w.writerow({"sweep": name, **pt})
+        written.append("scaling.csv")
+    tables = {
+        "specialization": ("specialization.csv", lambda r: r["rows"],
+                           ["scene", "dims", "specialize", "has_motion", "has_lens", "triangles", "samples_tested",
+                            "samples_covered", "tests_by_path", "madd_per_test", "mul_per_test", "test_madd_per_test",
+                            "test_mul_per_test", "specialized_madd_per_test", "specialized_mul_per_test",
+                            "lens_madd_charged", "lerp_madd_charged", "frame_cycles", "wall_s", "cpu_s", "samples_visited", "kernel_s",
+                            "kernel_ns_per_test", "kernel_ns_per_visited", "kernel_visited_over_static",
+                            "tested_over_static", "cycles_over_static", "wall_over_static", "cpu_over_static",
+                            "kernel_ns_over_static"]),
+        "batch": ("batch.csv", lambda r: r["rows"],
+                  ["sweep", "triangles", "tiles", "samples", "frame_cycles", "cycles_vs_smallest", "cycles_vs_previous",
+                   "cycles_vs_all_smallest", "cycles_deterministic", "wall_s", "cpu_s", "image_identical",
+                   "depth_identical", "samples_tested", "zcull_records_out", "zcull_tiles_culled", "source_batches"]),
+        "frame": ("frame.csv", lambda r: r["points"],
+                  ["n", "width", "height", "spp", "status", "reason", "triangles", "build_s", "run_s", "run_cpu_s",
+                   "frame_cycles", "samples_tested", "samples_covered", "rss_after_warm_up_mb", "build_peak_mb",
+                   "rss_before_run_mb", "run_peak_mb", "whole_peak_mb", "rss_after_run_mb", "samples_rss_growth_mb",
+                   "rop_rss_growth_mb", "make_samples_s", "progress_triangles", "progress_elapsed_s",
+                   "process_wall_s", "time_limit_s", "mem_limit_gib"]),
+    }
+    for key, (fname, get_rows, fields) in tables.items():
+        if key in results:
+            with open(outdir / fname, "w", newline="") as f:
+                w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
+                w.writeheader()
+                for row in get_rows(results[key]):
+                    w.writerow(to_jsonable(row))
+            written.append(fname)
+    print(f"results written to {outdir}/ ({', '.join(written)})")
     return 0
 
 
