@@ -29,7 +29,6 @@ temporaries.
 from __future__ import annotations
 
 import json
-import os
 import resource
 import signal
 import subprocess
