@@ -55,8 +55,8 @@ def headline(result) -> dict[str, float]:
 def summary_text(result, title: str = "") -> str:
     """One screen: per-unit cycles and utilization, STE, shader executions, frame cycles."""
     hd = headline(result)
-    dims = "".join(n for n, on in (("xy", True), ("t", result.dimensions["motion"]),
-                                    ("uv", result.dimensions["lens"])) if on)
+    dims = "".join(n for n, on in (("xy", True), ("uv", result.dimensions["lens"]),
+                                    ("t", result.dimensions["motion"])) if on)
     lines = []
     if title:
         lines.append(title)
