@@ -36,6 +36,11 @@ EVENTS = ("rejected_box", "rejected_edge", "rejected_lens", "rejected_frustum_ti
 EV_REJ_BOX, EV_REJ_EDGE, EV_REJ_LENS, EV_REJ_TIME, EV_ACCEPT = range(len(EVENTS))
 
 MARGIN_PX = 1.0 / 64.0  # pixel margin around every tile, absorbs rounding
+# The sample tester works on float32 vertices (rounded by up to 2^-24 of their
+# magnitude, and lerped in float32): every float64 bound here is widened by
+# this fraction of the magnitudes of its terms so it stays conservative
+# against that rounding, even for vertices millions of pixels away.
+F32_REL = 1e-6
 
 
 @nb.njit(cache=True)
@@ -77,13 +82,22 @@ def box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ta, tb, ops):
         d = np.empty(2)
         for s in range(2):
             if plane == 0:  # left side: outside when x0 W - X > 0
-                d[s] = x0 * (wmn[s] if x0 > 0 else wmx[s]) - xmx[s]
+                wv = wmn[s] if x0 > 0 else wmx[s]
+                d[s] = x0 * wv - xmx[s]
+                mag = abs(x0 * wv) + abs(xmx[s])
             elif plane == 1:  # right side: outside when X - x1 W > 0
-                d[s] = xmn[s] - x1 * (wmx[s] if x1 > 0 else wmn[s])
+                wv = wmx[s] if x1 > 0 else wmn[s]
+                d[s] = xmn[s] - x1 * wv
+                mag = abs(x1 * wv) + abs(xmn[s])
             elif plane == 2:  # top
-                d[s] = y0 * (wmn[s] if y0 > 0 else wmx[s]) - ymx[s]
+                wv = wmn[s] if y0 > 0 else wmx[s]
+                d[s] = y0 * wv - ymx[s]
+                mag = abs(y0 * wv) + abs(ymx[s])
             else:  # bottom
-                d[s] = ymn[s] - y1 * (wmx[s] if y1 > 0 else wmn[s])
+                wv = wmx[s] if y1 > 0 else wmn[s]
+                d[s] = ymn[s] - y1 * wv
+                mag = abs(y1 * wv) + abs(ymn[s])
+            d[s] -= F32_REL * mag  # outside only beyond float32 rounding
         ops[OP_MADD] += 2
         ops[OP_CMP] += 2
         if d[0] > 0.0 and d[1] > 0.0:
@@ -118,7 +132,7 @@ def _edge_time_interval(edge_h, edge_gamma, edge_g, edge_fg, gamma_per_tile, tri
         sx = x1 if hx > 0 else x0
         sy = y1 if hy > 0 else y0
         o = hx * sx + hy * sy + hw
-        o += 1e-9 * (abs(hx * sx) + abs(hy * sy) + abs(hw))
+        o += F32_REL * (abs(hx * sx) + abs(hy * sy) + abs(hw))
         gam = edge_gamma[tri, k]
         if gamma_per_tile:
             gt = -np.inf
@@ -129,7 +143,7 @@ def _edge_time_interval(edge_h, edge_gamma, edge_g, edge_fg, gamma_per_tile, tri
                 aw = edge_g[tri, k, 2] if which == 0 else edge_fg[tri, k, 2]
                 gt = max(gt, aw + (ax * x1 if ax > 0 else ax * x0) + (ay * y1 if ay > 0 else ay * y0))
                 mag = max(mag, abs(aw) + abs(ax) * max(abs(x0), abs(x1)) + abs(ay) * max(abs(y0), abs(y1)))
-            gam = min(gam, gt + 1e-9 * mag)  # both bound the slope: keep the tighter
+            gam = min(gam, gt + F32_REL * mag)  # both bound the slope: keep the tighter
             ops[OP_MADD] += 4
             ops[OP_CMP] += 6
         ops[OP_MADD] += 2

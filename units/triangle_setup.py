@@ -225,7 +225,9 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
                     a = g[0] + sign * (lx[0, k, 0] if plane < 2 else (lx[0, k, 1] if plane < 4 else 0.0))
                     e = g[1] + sign * (lx[1, k, 0] if plane < 2 else (lx[1, k, 1] if plane < 4 else 0.0))
                     # tolerance: relative to the magnitude of the terms
-                    tol = 1e-9 * (abs(g[0]) + abs(g[1]) + ls[0] + ls[1] + abs(px[0, k, 3]) + abs(px[1, k, 3]))
+                    # widened by float32 rounding: the sample tester lerps float32 vertices
+                    tol = 1e-6 * (abs(g[0]) + abs(g[1]) + ls[0] + ls[1] + abs(px[0, k, 3]) + abs(px[1, k, 3])
+                                  + abs(px[0, k, 0]) + abs(px[1, k, 0]) + abs(px[0, k, 1]) + abs(px[1, k, 1]))
                     lo, hi = _interval_hull_nonneg(a + tol, e + tol - (a + tol), lo, hi)
             ops[OP_MADD] += 12
             ops[OP_CMP] += 12
@@ -392,7 +394,7 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
                     gam = max(gam, m)
                 # widen by the rounding of the terms so the bound stays conservative
                 mag = (abs(gv[0]) + abs(fv[0])) * max(abs(sx0), abs(sx1)) + (abs(gv[1]) + abs(fv[1])) * max(abs(sy0), abs(sy1)) + abs(gv[2]) + abs(fv[2])
-                edge_gamma[tri, k] = gam + 1e-9 * mag
+                edge_gamma[tri, k] = gam + 1e-6 * mag
                 for c in range(3):
                     edge_h[tri, k, c] = sgn * hv[c]
                     edge_g[tri, k, c] = sgn * gv[c]

@@ -19,16 +19,27 @@ them). The checks below are what §8 asks of every hard case:
 * ``assert_bbox_matches_hierarchical``: the BBOX traversal (every sample of
   the bounds) and the hierarchical tile tests give identical images and
   depth buffers, with the default architecture (depth test, z-cull, shading
-  cache) and with the counting architecture;
+  cache) and with the counting architecture, and z-cull off changes nothing;
 * ``assert_tiles_conservative``: the unit-level check of ``test_tile_test``
-  (random samples the exact test accepts lie in a kept tile whose
-  (t^, u^, v^, z^) contain them), for any triangle of a case;
+  (random samples the exact test accepts lie in the bounds, the time span
+  and a kept tile whose (t^, u^, v^, z^) contain them), for each triangle;
+* ``check_conservative_mode``: the same promise for conservative mode (1x1
+  tiles, one interval-shader run per pixel);
 * ``assert_continuous``: a 1e-6 relative perturbation of every input
   coordinate changes the image only a little;
-* ``covered_once``: counts for watertight meshes.
+* ``full_screen_counts_are_one``, ``assert_single_layer_counts`` and
+  ``assert_closed_mesh_watertight``: watertightness of meshes (every sample
+  once; at most once; front hits equal back hits along every sample ray);
+* ``assert_matches_reference``: float32 coverage and depth at pixel centres
+  against the float64 reference renderer, away from edges.
+
+Cases are ``Case`` objects; ``check_exact``, ``check_bbox``, ``check_tiles``,
+``check_continuity`` run the checks on them.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
@@ -127,7 +138,8 @@ def assert_intervals_sane(kept, what=""):
         assert np.all(np.isfinite(kept[name])), f"{what}: non-finite {name} in a kept tile record"
     for a, b, lo, hi in (("t_lo", "t_hi", 0.0, 1.0), ("u_lo", "u_hi", -1.0, 1.0), ("v_lo", "v_hi", -1.0, 1.0),
                          ("z_lo", "z_hi", -1.0, 1.0)):
-        assert np.all(kept[a] <= kept[b]), f"{what}: empty {a[0]}^ interval in a kept tile record"
+        if a != "z_lo":  # an empty z^ (plane test proves no depth) is harmless: no sample can be covered
+            assert np.all(kept[a] <= kept[b]), f"{what}: empty {a[0]}^ interval in a kept tile record"
         assert np.all(kept[a] >= lo) and np.all(kept[b] <= hi), f"{what}: {a[0]}^ outside [{lo}, {hi}]"
 
 
@@ -194,7 +206,10 @@ def assert_exact_coverage(draw, *, spp=16, seed=0, backface=False, overrides=(),
 
 
 def assert_bbox_matches_hierarchical(draw, *, spp=8, seed=0, backface=False, what=""):
-    """BBOX (no culling) and the hierarchical tile tests: identical images and depths."""
+    """BBOX (no culling) and the hierarchical tile tests give identical images and
+    depths, with the default architecture (depth test, z-cull, shading cache) and
+    with the counting one; and z-cull on or off changes nothing either."""
+    default = {}
     for overrides in ((), COUNT):
         out = {}
         for alg in ("bbox", "hierarchical"):
@@ -208,7 +223,15 @@ def assert_bbox_matches_hierarchical(draw, *, spp=8, seed=0, backface=False, wha
         ddiff = np.argwhere(np.any(b.depth != h.depth, axis=2))
         assert len(ddiff) == 0, f"{what}: hierarchical depth differs from BBOX at {ddiff[:8].tolist()}"
         assert h.counter("sample_tester", "samples_tested") <= b.counter("sample_tester", "samples_tested")
-    return out
+        if not overrides:
+            default = out
+    # z-cull is a culling test too: switching it off changes no pixel and no depth
+    off = render(draw, spp=spp, seed=seed, overrides=("zcull.enabled=false",), backface=backface)
+    assert_finite(off, what)
+    on = default["hierarchical"]
+    assert np.array_equal(on.image, off.image), f"{what}: z-cull changed the image"
+    assert np.array_equal(on.depth, off.depth), f"{what}: z-cull changed the depth buffer"
+    return default
 
 
 def assert_tiles_conservative(q, r, lx, ly, *, seed=0, n=200, width=W, height=H, tile_size=8, coarse_factor=2,
@@ -278,3 +301,284 @@ def full_screen_counts_are_one(res, what=""):
     bad = np.argwhere(c != res.depth.shape[2])
     assert len(bad) == 0, (f"{what}: pixels {bad[:8].tolist()} have {c[tuple(bad[0])]} hits for "
                            f"{res.depth.shape[2]} samples (holes or double coverage)")
+
+
+# --------------------------------------------------------------------------- float32 pipeline vs float64 reference
+def centre_table(tuv):
+    """A sample table with every sample at the pixel centre and the given (t, u, v)."""
+    tuv = np.asarray(tuv, dtype=np.float64).reshape(-1, 3)
+    tuv = tuv[np.argsort(tuv[:, 0], kind="stable")]
+    table = np.zeros((len(tuv), 5))
+    table[:, 0:2] = 0.5
+    table[:, 2] = tuv[:, 1]
+    table[:, 3] = tuv[:, 2]
+    table[:, 4] = tuv[:, 0]
+    return table
+
+
+def reference_coverage(q, r, lx, ly, t, u, v, width, height, margin, backface=False):
+    """float64 reference (tests/reference.py: clip, divide, Cramer) at the pixel centres.
+
+    Returns (covered, depth, certain): ``certain`` marks pixels whose centre
+    is at least ``margin`` pixels from every edge (the coverage does not change
+    when the point moves by ``margin`` in any of eight directions)."""
+    from reference import positions_at, render_static
+
+    tris = positions_at(q, r, lx, ly, t, u, v)
+    _, tid, depth = render_static(tris, None, width, height, (0.5, 0.5), cull_backfaces=backface)
+    covered = tid >= 0
+    certain = np.ones_like(covered)
+    for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1)):
+        _, tj, _ = render_static(tris, None, width, height, (0.5 + margin * dx, 0.5 + margin * dy),
+                                 cull_backfaces=backface)
+        certain &= tj == tid
+    return covered, depth, certain
+
+
+def assert_matches_reference(q, r, lx, ly, tuv, *, width=W, height=H, margin=1e-3, ztol=1e-4, what="",
+                             min_certain=0.5, backface=False):
+    """float32 pipeline coverage and nearest depth at pixel centres equal the
+    float64 reference wherever the centre is ``margin`` away from every edge."""
+    table = centre_table(tuv)
+    draw = make_draw(q, r, lx, ly, width=width, height=height)
+    res = render(draw, spp=len(table), pattern="table", table=table, clear_depth=CLEAR_DEPTH, backface=backface)
+    assert_finite(res, what)
+    n_certain = 0
+    for s in range(len(table)):
+        t, u, v = table[s, 4], table[s, 2], table[s, 3]
+        if not draw.has_motion:
+            t = 0.5  # the sample generator pins t without motion
+        if not draw.has_lens:
+            u = v = 0.0
+        cov, depth, certain = reference_coverage(q, r, lx, ly, t, u, v, width, height, margin, backface)
+        got = res.depth[..., s] != CLEAR_DEPTH
+        bad = np.argwhere(certain & (got != cov))
+        assert len(bad) == 0, (f"{what}: at (t, u, v) = ({t}, {u}, {v}) float32 coverage differs from the float64 "
+                               f"reference at (row, col) {bad[:8].tolist()} (pipeline {got[tuple(bad[0])]})")
+        both = certain & cov & got
+        dz = np.abs(res.depth[..., s][both].astype(np.float64) - depth[both])
+        if dz.size:
+            assert dz.max() <= ztol, f"{what}: depth differs from the float64 reference by {dz.max()}"
+        n_certain += int(certain.sum())
+    frac = n_certain / (len(table) * width * height)
+    assert frac >= min_certain, f"{what}: only {frac:.2f} of the pixel centres are away from edges"
+    return res
+
+
+# --------------------------------------------------------------------------- named cases
+def _has_key(section, key):
+    return hasattr(getattr(load_arch(), section), key)
+
+
+# tile-test configurations every case is also run with: flat traversal, small
+# and large tiles, the per-tile edge slope bound where the architecture has it
+VARIANTS = [(), ("tile_traverser.coarse_factor=1",), ("tile_traverser.tile_size=4", "tile_traverser.coarse_factor=2"),
+            ("tile_traverser.tile_size=16",)]
+if _has_key("tile_test", "gamma"):
+    VARIANTS.append(("tile_test.gamma='tile'",))
+
+
+@dataclass
+class Case:
+    """A named triangle set of a hard case: clip-space vertices at t=0 (``q``) and
+    t=1 (``r``) and lens shifts, as ``draw_from_clip`` takes them."""
+
+    name: str
+    q: np.ndarray
+    r: np.ndarray | None = None
+    lx: np.ndarray | None = None
+    ly: np.ndarray | None = None
+    depth_w: tuple | None = None
+    width: int = W
+    height: int = H
+    spp: int = 16
+    backface: bool = False
+    min_covered: int = 1  # the case must cover at least this many samples (not vacuous)
+    doc: str = ""  # which hard case this is and why it is hard
+
+    def __post_init__(self):
+        self.q = np.asarray(self.q, dtype=np.float64)
+        self.r = self.q.copy() if self.r is None else np.asarray(self.r, dtype=np.float64)
+        self.lx = no_lens(self.q) if self.lx is None else np.asarray(self.lx, dtype=np.float64)
+        self.ly = no_lens(self.q) if self.ly is None else np.asarray(self.ly, dtype=np.float64)
+
+    @property
+    def arrays(self):
+        return self.q, self.r, self.lx, self.ly
+
+    def draw(self):
+        return make_draw(*self.arrays, width=self.width, height=self.height, depth_w=self.depth_w)
+
+    def __repr__(self):
+        return self.name
+
+
+def document(cases, docs):
+    """Attach each case's docstring from ``docs`` (keyed by name, a trailing
+    ``_backface_culled`` ignored); every case must have one."""
+    for c in cases:
+        c.doc = docs[c.name.removesuffix("_backface_culled")]
+        assert c.doc, c.name
+    return cases
+
+
+def check_exact(case, seeds=(0,), variants=VARIANTS):
+    """No NaN/inf anywhere, and the covered samples and depths are exactly those of
+    the exact test with no culling in front, for every tile-test configuration."""
+    draw = case.draw()
+    covered = 0
+    for seed in seeds:
+        for ov in variants:
+            res = assert_exact_coverage(draw, spp=case.spp, seed=seed, backface=case.backface, overrides=ov,
+                                        what=f"{case.name} {ov or ''} seed {seed}")
+            covered = max(covered, int(counts_of(res).sum()))
+    assert covered >= case.min_covered, f"{case.name}: covers only {covered} samples, the case is vacuous"
+    return covered
+
+
+def check_bbox(case, seed=0):
+    """BBOX vs hierarchical vs z-cull off (see ``assert_bbox_matches_hierarchical``),
+    with red, green and blue vertices: the interpolated colors of the default
+    (cached) and the per-sample shading stay convex combinations, inside [0, 1]."""
+    rgb = np.broadcast_to(np.eye(3, dtype=np.float32), (len(case.q), 3, 3)).copy()
+    draw = make_draw(*case.arrays, width=case.width, height=case.height, depth_w=case.depth_w, color=rgb)
+    out = assert_bbox_matches_hierarchical(draw, spp=min(case.spp, 8), seed=seed, backface=case.backface,
+                                           what=case.name)
+    per_sample = render(draw, spp=min(case.spp, 8), seed=seed, backface=case.backface,
+                        overrides=("shading.mode='per_sample'",))
+    assert_finite(per_sample, case.name)
+    for res in (out["hierarchical"], per_sample):
+        im = res.image[..., :3]
+        assert im.min() >= -1e-6 and im.max() <= 1.0 + 1e-6, (
+            f"{case.name}: interpolated colors leave [0, 1]: [{im.min()}, {im.max()}] (bad barycentrics)")
+    return out
+
+
+def check_tiles(case, seed=0, **kw):
+    return assert_tiles_conservative(*case.arrays, seed=seed, width=case.width, height=case.height,
+                                     depth_w=case.depth_w, what=case.name, **kw)
+
+
+def check_continuity(case, **kw):
+    return assert_continuous(*case.arrays, width=case.width, height=case.height, spp=case.spp,
+                             depth_w=case.depth_w, what=case.name, **kw)
+
+
+def flip_winding(a):
+    return a[:, [0, 2, 1]]
+
+
+def assert_closed_mesh_watertight(case, seeds=(0, 1), spp=4, min_fraction=0.02):
+    """A closed mesh with the camera outside and the mesh inside [near, far]: along
+    every sample ray the front faces hit equal the back faces hit. Front hits are
+    counted with backface culling, back hits by culling the reversed winding;
+    a hole or a double hit on a shared edge breaks the equality."""
+    q, r, lx, ly = case.arrays
+    front = make_draw(q, r, lx, ly, width=case.width, height=case.height)
+    back = make_draw(flip_winding(q), flip_winding(r), flip_winding(lx), flip_winding(ly), width=case.width,
+                     height=case.height)
+    for seed in seeds:
+        f = render_counts(front, spp=spp, seed=seed, backface=True)
+        b = render_counts(back, spp=spp, seed=seed, backface=True)
+        assert_finite(f, case.name)
+        assert_finite(b, case.name)
+        cf, cb = counts_of(f), counts_of(b)
+        bad = np.argwhere(cf != cb)
+        assert len(bad) == 0, (f"{case.name}: front and back hits differ at (row, col) {bad[:8].tolist()}: "
+                               f"{cf[tuple(bad[0])]} front, {cb[tuple(bad[0])]} back (hole or double hit)")
+        assert (cf > 0).mean() >= min_fraction, f"{case.name}: the mesh covers almost nothing"
+
+
+# --------------------------------------------------------------------------- world-space meshes
+FOV = np.radians(50.0)
+_F = 1.0 / np.tan(FOV / 2)
+# perspective projection with near 0.1 and far 10 (z/w = PERSPECTIVE[0] + PERSPECTIVE[1] / w)
+PROJ = np.array([[_F / (W / H), 0, 0, 0], [0, _F, 0, 0], [0, 0, -1.0202020202020203, -0.20202020202020202],
+                 [0, 0, -1, 0]])
+
+
+def project(verts, faces):
+    """Clip-space triangles (N, 3, 4) of a world-space mesh seen by a camera at the
+    origin looking down -z."""
+    verts = np.asarray(verts, dtype=np.float64)
+    hom = np.c_[verts, np.ones(len(verts))] @ PROJ.T
+    return hom[np.asarray(faces)]
+
+
+def mesh_lens(q, r, radius, focus):
+    """Thin-lens shifts (draw.lens_shift) for clip-space triangles made by ``project``."""
+    return lens_for(q, r, radius, focus, (PROJ[0, 0], PROJ[1, 1]))
+
+
+def grid_mesh(x0, x1, z0, z1, nx, nz, height):
+    """A horizontal grid (a floor or ceiling at y = ``height``) of 2 nx nz triangles,
+    vertices shared; returns (vertices, faces)."""
+    xs = np.linspace(x0, x1, nx + 1)
+    zs = np.linspace(z0, z1, nz + 1)
+    vx, vz = np.meshgrid(xs, zs)
+    verts = np.c_[vx.ravel(), np.full(vx.size, height), vz.ravel()]
+    faces = []
+    for j in range(nz):
+        for i in range(nx):
+            a = j * (nx + 1) + i
+            b, c, d = a + 1, a + nx + 1, a + nx + 2
+            faces += [(a, c, b), (b, c, d)] if (i + j) % 2 else [(a, c, d), (a, d, b)]
+    return verts, np.array(faces)
+
+
+def perspective_z(*arrays):
+    """Set every vertex's z to the perspective relation z = C1 w + C0 (in place)."""
+    from triangles import PERSPECTIVE
+
+    for a in arrays:
+        a[..., 2] = PERSPECTIVE[0] * a[..., 3] + PERSPECTIVE[1]
+    return arrays
+
+
+def assert_single_layer_counts(res, full_rows=(), what=""):
+    """An open single-layer surface: no sample is covered twice; the given rows are
+    covered completely (no holes)."""
+    c = counts_of(res)
+    spp = res.depth.shape[2]
+    over = np.argwhere(c > spp)
+    assert len(over) == 0, f"{what}: double coverage at (row, col) {over[:8].tolist()}"
+    for row in full_rows:
+        holes = np.nonzero(c[row] != spp)[0]
+        assert len(holes) == 0, f"{what}: holes in row {row} at columns {holes[:8].tolist()}: {c[row, holes[:8]]}"
+
+
+def check_conservative_mode(case, spp=64, seed=5, ztol=1e-5):
+    """Conservative mode (000 §2: 1x1 tiles, no sample tester, one interval-shader
+    run per (triangle, pixel)): finite output, and every (pixel, t) the exact test
+    covers is emitted with t in t^ and its depth in z^. Single-triangle cases."""
+    from pipeline_sim.sampling import make_samples
+    from pipeline_sim.shaders import interval_shader
+
+    assert len(case.q) == 1
+    d = case.draw()
+    a = load_arch(overrides=["pipeline.mode='conservative'", "rop.depth_test='always'",
+                             f"triangle_setup.backface_culling={str(case.backface).lower()}"])
+    res = run_pass(RenderPass(draw=d, arch=a, spp=1, shader=interval_shader, clear_color=(2, 2, -1, -1),
+                              clear_depth=CLEAR_DEPTH))
+    assert_finite(res, f"{case.name} conservative mode")
+    s = make_samples(case.width, case.height, spp, seed, lens=d.has_lens, motion=d.has_motion, pattern="net")
+    count, z, _ = exact_coverage(d, s, case.backface)
+    rows, cols, js = np.nonzero(count > 0)
+    k = (rows * case.width + cols) * spp + js
+    t = s.t[k].astype(np.float64)
+    zz = z[rows, cols, js].astype(np.float64)
+    tl, zl, th, zh = (res.image[rows, cols, c].astype(np.float64) for c in range(4))
+    tol = ztol * (1.0 + np.abs(zz))
+    bad = np.nonzero((t < tl) | (t > th) | (zz < zl - tol) | (zz > zh + tol))[0]
+    assert len(bad) == 0, (f"{case.name}: conservative mode misses covered (pixel, t) at (row, col) "
+                           f"{np.c_[rows[bad], cols[bad]][:8].tolist()}: t = {t[bad[0]]} vs t^ [{tl[bad[0]]}, "
+                           f"{th[bad[0]]}], z = {zz[bad[0]]} vs z^ [{zl[bad[0]]}, {zh[bad[0]]}]")
+    return len(t)
+
+
+def sphere(subdivisions=1, radius=0.6):
+    """(vertices, faces) of an icosphere centred at the origin."""
+    import trimesh
+
+    s = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    return np.asarray(s.vertices), np.asarray(s.faces)
