@@ -87,9 +87,12 @@ unless said otherwise:
    not finish is reported with the reason. ``--quick`` runs a tiny stand-in
    (4,000 triangles at 480x270). Writes ``frame.csv``. This section alone
    takes about 8 minutes of the full run.
+8. Sample patterns (benchmarks/patterns.py): the per-pixel discrepancy of
+   every sample pattern (scipy.stats.qmc, centered L2) in (x, y), (x, y, t)
+   and 5D, and how fast each is generated.
 
 ``--only SECTION[,SECTION]`` runs some sections only (default, scaling,
-compile, specialization, batch, frame; "default" is 0-2);
+compile, specialization, batch, frame, patterns; "default" is 0-2);
 ``--frame-triangles N[,N]`` changes the frame section's sizes.
 """
 
@@ -125,6 +128,7 @@ FULL = {
     "batch_repeats": 2,
     "frame": {"n": [250_000, 1_000_000], "width": 1920, "height": 1080, "spp": 16,
               "time_limit_s": 480, "mem_limit_gib": 12},
+    "patterns": {"width": 64, "height": 64, "spp": [16, 64], "pixels": 256},
 }
 QUICK = {
     "pairs": 3, "instrumented": 1, "simpy_only": 3, "micro_repeats": 5, "scaling_repeats": 1,
@@ -136,9 +140,10 @@ QUICK = {
     "batch_repeats": 1,
     # a tiny stand-in for the 1080p frame (same triangles, 1/16 of the pixels)
     "frame": {"n": [4_000], "width": 480, "height": 270, "spp": 16, "time_limit_s": 120, "mem_limit_gib": 12},
+    "patterns": {"width": 32, "height": 32, "spp": [16], "pixels": 64},
 }
 # sections in the order they run; --only picks some
-SECTIONS = ("default", "scaling", "compile", "specialization", "batch", "frame")
+SECTIONS = ("default", "scaling", "compile", "specialization", "batch", "frame", "patterns")
 
 
 def log(msg: str) -> None:
@@ -601,8 +606,9 @@ def report(results: dict) -> tuple[str, list[dict]]:
             out.append(f"  cold / cached warm_up: {cp['cold']['warm_up_s'] / max(1e-9, cp['cached']['warm_up_s']):.0f}x; "
                        f"{cp['cache_files']} cache files written")
         out.append("")
-    from benchmarks import batching, frame, specialization
-    for key, mod in (("specialization", specialization), ("batch", batching), ("frame", frame)):
+    from benchmarks import batching, frame, patterns, specialization
+    for key, mod in (("specialization", specialization), ("batch", batching), ("frame", frame),
+                     ("patterns", patterns)):
         if key in results:
             out.extend(mod.report(results[key], table, add))
             out.append("")
@@ -676,6 +682,9 @@ def main(argv: list[str] | None = None) -> int:
     if "frame" in sections:
         from benchmarks import frame
         results["frame"] = frame.bench(cfg, log)
+    if "patterns" in sections:
+        from benchmarks import patterns
+        results["patterns"] = patterns.bench(cfg, log)
     results["machine"]["load_average_end"] = os.getloadavg()
     results["source_digest_end"] = source_digest()
     results["elapsed_s"] = time.perf_counter() - start

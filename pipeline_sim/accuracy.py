@@ -264,7 +264,7 @@ def _reference_arch(arch: ArchConfig | None) -> ArchConfig:
     shipped = load_arch()
     base = shipped if arch is None else arch
     return base.replace(
-        pipeline=dataclasses.replace(base.pipeline, mode="standard"),
+        pipeline=dataclasses.replace(base.pipeline, mode="standard", sample_pattern="net"),
         shading=dataclasses.replace(base.shading, mode="per_sample"),
         tile_test=dataclasses.replace(shipped.tile_test),
     ).validate("reference arch")

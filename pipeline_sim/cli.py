@@ -160,7 +160,7 @@ def cmd_warmup(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    from pipeline_sim.compare import compare, format_table, parse_algorithms, write_comparison
+    from pipeline_sim.compare import compare, format_checks, format_table, parse_algorithms, write_comparison
 
     algorithms = parse_algorithms(args.algorithms)
     scene, arch = _load_inputs(args)
@@ -171,7 +171,12 @@ def cmd_compare(args) -> int:
             print(f"  {name}: STE {100 * row['ste']:.2f}%, {row['samples_tested']:,} samples tested, "
                   f"{row['frame_cycles']:,.0f} cycles, {row['wall_time_s']:.2f} s", file=sys.stderr)
 
-    comp = compare(scene, arch, algorithms, progress=progress)
+    reference = None
+    if args.reference_spp:
+        from pipeline_sim.accuracy import ReferenceSpec, reference_image
+
+        reference = reference_image(scene, ReferenceSpec(spp=args.reference_spp), arch=arch)
+    comp = compare(scene, arch, algorithms, progress=progress, reference=reference)
     info = {"scene": str(args.scene), "scene_digest": scene.digest, "image": dataclasses.asdict(scene.image),
             "arch": arch.to_dict(), "algorithms": algorithms, "compile_time_s": compile_s,
             "versions": _package_versions()}
@@ -179,11 +184,13 @@ def cmd_compare(args) -> int:
         write_comparison(comp, Path(args.out), info)
     if not args.quiet:
         print(format_table(comp.table))
+        if comp.checks:
+            print(format_checks(comp.checks))
         print(f"images identical across algorithms: {'yes' if comp.identical else 'NO'}"
               + (f" (differ: {', '.join(comp.differing)})" if comp.differing else ""))
     if not comp.identical:
-        print(f"pipeline-sim: error: images differ between {algorithms[0]} and {', '.join(comp.differing)}: "
-              "a culling test rejected a covered sample", file=sys.stderr)
+        print(f"pipeline-sim: error: the image of {', '.join(comp.differing)} differs from the first algorithm "
+              "run on the same samples: a culling test rejected a covered sample", file=sys.stderr)
         return 1
     return 0
 
@@ -273,6 +280,8 @@ def build_parser() -> argparse.ArgumentParser:
     comp.add_argument("--spp", type=int, help="samples per pixel (overrides [image].spp)")
     comp.add_argument("--seed", type=int, help="sampling seed (overrides [image].seed)")
     comp.add_argument("--tile", type=int, help="tile size in pixels")
+    comp.add_argument("--reference-spp", type=int, metavar="N",
+                      help="measure each image's error against a reference at N spp (default: against BBOX)")
     comp.add_argument("--arch", metavar="FILE", help="architecture TOML applied over the shipped default")
     comp.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help="override one setting")
     comp.add_argument("--quiet", "-q", action="store_true", help="print nothing on success")

@@ -24,8 +24,15 @@ DEPTH_FUNCS = ("less", "lequal", "greater", "gequal", "equal", "always", "never"
 BLEND_MODES = ("replace", "add", "min", "max")
 # bbox: every tile of the moving, defocused bounds and every sample of the
 # triangle's time span (the baseline of 001 and 002); hierarchical: the tile
-# tests of 002 §4 (moving box, optionally linearized edges) and lens bounds
-TILE_TEST_ALGORITHMS = ("hierarchical", "bbox")
+# tests of 002 §4 (moving box, linearized or quadratic edges) and lens bounds;
+# hull: the convex hull of the six projected vertices (McGuire et al. 2010,
+# 001 §3.2); dual_space: lens bounds, then time bounds over the whole lens
+# range (Laine et al. 2011, 001 §2); two_stage: lens bounds, then time bounds
+# linear in the lens coordinate (001 §3.3-3.4); interleave_uvt: one 2D
+# raster per (u, v, t) tuple of a fixed set (Fatahalian et al. 2009)
+TILE_TEST_ALGORITHMS = ("hierarchical", "bbox", "hull", "dual_space", "two_stage", "interleave_uvt")
+EDGE_SOLVERS = ("linearized", "quadratic")
+SAMPLE_PATTERNS = ("net", "sobol", "stratified", "random", "interleave")
 
 
 @dataclass
@@ -40,14 +47,17 @@ class PipelineConfig:
     clock_ghz: float = 1.0
     specialize: bool = True
     sample_pattern: str = "net"
-
+    interleave_tuples: int = 64
 
     def validate(self, where: str) -> None:
         _choice(where, "mode", self.mode, ("standard", "conservative"))
         for name in ("triangles_per_batch", "tiles_per_batch", "samples_per_batch", "queue_depth"):
             _at_least(where, name, getattr(self, name), 1)
         _positive(where, "clock_ghz", self.clock_ghz)
-        _choice(where, "sample_pattern", self.sample_pattern, ("net", "sobol", "stratified", "random"))
+        _choice(where, "sample_pattern", self.sample_pattern, SAMPLE_PATTERNS)
+        if not 1 <= self.interleave_tuples <= 64:
+            raise UserError(f"{where}.interleave_tuples: must be from 1 to 64 (one bit each in a tile's "
+                            f"tuple mask), got {self.interleave_tuples}")
 
 
 @dataclass
@@ -95,6 +105,7 @@ class TileTestConfig(UnitTiming):
     instances: int = 2
     algorithm: str = "hierarchical"
     edge_test: bool = True
+    edge_solver: str = "linearized"
     gamma: str = "triangle"
     lens_bounds: bool = True
     # axis-aligned user clip planes on t, u and v (000 §2): samples outside are never covered
@@ -109,6 +120,7 @@ class TileTestConfig(UnitTiming):
         super().validate(where)
         _choice(where, "algorithm", self.algorithm, TILE_TEST_ALGORITHMS)
         _choice(where, "gamma", self.gamma, ("triangle", "tile"))
+        _choice(where, "edge_solver", self.edge_solver, EDGE_SOLVERS)
         for axis, lo, hi in (("t", 0.0, 1.0), ("u", -1.0, 1.0), ("v", -1.0, 1.0)):
             a = getattr(self, f"clip_{axis}_lo")
             b = getattr(self, f"clip_{axis}_hi")
@@ -206,6 +218,9 @@ class ArchConfig:
     def validate(self, where: str = "arch") -> "ArchConfig":
         for f in fields(self):
             getattr(self, f.name).validate(f"{where}: {f.name}")
+        if self.tile_test.algorithm == "interleave_uvt" and self.pipeline.sample_pattern != "interleave":
+            raise UserError(f"{where}: tile_test.algorithm = 'interleave_uvt' needs pipeline.sample_pattern = "
+                            f"'interleave' (got '{self.pipeline.sample_pattern}')")
         # conservative mode rasterizes 1x1 tiles (000 §2); the renderer applies
         # that without rewriting tile_size, so leaving the mode restores it
         return self

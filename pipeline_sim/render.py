@@ -103,12 +103,19 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     spp = 1 if conservative else p.spp
     pattern = p.sample_pattern or ("table" if p.sample_table is not None else arch.pipeline.sample_pattern)
     samples = make_samples(draw.width, draw.height, spp, p.seed, lens=lens, motion=motion,
-                           pattern=pattern, table=p.sample_table)
+                           pattern=pattern, table=p.sample_table, interleave_tuples=arch.pipeline.interleave_tuples)
+    algorithm = arch.tile_test.algorithm
+    if algorithm == "interleave_uvt" and samples.tuples is None:
+        raise UserError(f"pass {p.name}: tile_test.algorithm = 'interleave_uvt' needs the 'interleave' sample "
+                        f"pattern, not '{pattern}'")
 
-    setup = TriangleSetup(arch.triangle_setup, draw, ts)
+    setup = TriangleSetup(arch.triangle_setup, draw, ts, hull=algorithm == "hull")
+    # the hierarchical tests of 002 start at coarse tiles; the others cover
+    # their bounding geometry flat, as 001 does
     traverser = TileTraverser(arch.tile_traverser, setup.table, ts, draw.width, draw.height,
-                              coarse_test=arch.tile_test.algorithm != "bbox")
-    tile_test = TileTest(arch.tile_test, setup.table, ts, draw.width, draw.height, draw.depth_w)
+                              coarse_test=algorithm == "hierarchical")
+    tile_test = TileTest(arch.tile_test, setup.table, ts, draw.width, draw.height, draw.depth_w,
+                         tuples=samples.tuples)
     spec = arch.pipeline.specialize
     zcull = ZCull(arch.zcull, arch.rop.depth_test, ts, draw.width, draw.height, p.clear_depth,
                   motion or not spec, lens or not spec)

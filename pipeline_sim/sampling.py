@@ -44,6 +44,8 @@ from pipeline_sim.errors import UserError, did_you_mean
 
 __all__ = [
     "SampleSet",
+    "interleave_groups",
+    "interleave_tuple_set",
     "concentric_disk",
     "generator_matrices",
     "grunschloss_keller_matrices",
@@ -59,7 +61,7 @@ __all__ = [
 MAX_SPP = 1 << 16
 #: Fixed-point precision of generated coordinates (float32 mantissa).
 _FRAC_BITS = 24
-_PATTERNS = ("net", "random", "stratified", "sobol", "table")
+_PATTERNS = ("net", "random", "stratified", "sobol", "table", "interleave")
 _LENS_SHAPES = ("disk", "square")
 _TABLE_COLUMNS = ("x", "y", "u", "v", "t")
 _MASK64 = (1 << 64) - 1
@@ -535,6 +537,10 @@ class SampleSet:
     lens: bool
     motion: bool
     row0: int = 0
+    # Interleave UVT only: the shared (u, v, t) tuples, (n, 3) float64, and
+    # each sample's index into them (int8); None for every other pattern
+    tuples: np.ndarray | None = None
+    tup: np.ndarray | None = None
 
     @property
     def npix(self) -> int:
@@ -605,6 +611,7 @@ def make_samples(
     lens_shape: str = "disk",
     scramble_table: bool = False,
     rows: tuple[int, int] | None = None,
+    interleave_tuples: int = 64,
 ) -> SampleSet:
     """Generate the 5D samples of a ``width x height`` frame (or rows ``[r0, r1)``).
 
@@ -613,7 +620,8 @@ def make_samples(
     uniform samples; ``"stratified"``: jittered, one sample per 1/spp stratum
     of each dimension (Latin hypercube pairing); ``"sobol"``: the 5D Sobol
     points with a per-pixel digital shift (``spp = 2^m``); ``"table"``: the user's (spp, 5) table (columns x, y, u, v,
-    t) in every pixel, optionally Cranley-Patterson rotated per pixel.
+    t) in every pixel, optionally Cranley-Patterson rotated per pixel;
+    ``"interleave"``: Interleave UVT (see ``interleave_tuple_set``).
     Values depend only on (seed, pixel index, sample index).
     """
     width = _check_int("width", width, 1)
@@ -634,6 +642,9 @@ def make_samples(
         raise UserError("sample pattern 'table' needs a table of shape (spp, 5)")
     if pattern != "table" and table is not None:
         raise UserError(f"a sample table was given but pattern is '{pattern}' (use 'table')")
+    if pattern == "interleave":
+        return _interleave_samples(width, height, spp, seed, lens=lens, motion=motion, n_tuples=interleave_tuples,
+                                   lens_shape=lens_shape, rows=rows)
     if pattern in ("net", "sobol") and spp & (spp - 1):
         raise UserError(f"spp = {spp} must be a power of two for the '{pattern}' sample pattern")
     if rows is None:
@@ -681,3 +692,70 @@ def make_samples(
                          motion, ox, oy, ou, ov, ot)
     return SampleSet(x=ox, y=oy, u=ou, v=ov, t=ot, spp=spp, width=width, height=nrows,
                      lens=lens, motion=motion, row0=r0)
+
+
+# ---------------------------------------------------------------------------
+# Interleave UVT (Fatahalian et al. 2009, as 001 §2 and 002 §2 describe it)
+# ---------------------------------------------------------------------------
+
+
+def interleave_tuple_set(n: int, spp: int, lens_shape: str = "disk") -> np.ndarray:
+    """The fixed set of ``n`` (u, v, t) tuples of Interleave UVT, (n, 3), sorted by t.
+
+    Tuple i = g + G s (G = n / spp groups, s < spp) has t = (i + 0.5) / n, so
+    each group holds one tuple per 1/spp time stratum. A group's lens points
+    are a 2D (0, m, 2)-net (the (y, t) projection of the t-ordered net,
+    visited in a stride order that decouples lens from time; stratified
+    jitter when spp is not a power of two), Cranley-Patterson shifted per
+    group, so every pixel's spp tuples are well spread in (u, v, t).
+    """
+    n = _check_int("interleave_tuples", n, 1, 64)
+    spp = _check_int("spp", spp, 1, n)
+    if n % spp:
+        raise UserError(f"interleave: spp = {spp} must divide pipeline.interleave_tuples = {n}")
+    groups = n // spp
+    rng = np.random.default_rng(0x1EAF)  # a fixed table, the same in every run
+    if spp & (spp - 1) == 0:
+        net = t_ordered_net(spp.bit_length() - 1)
+        order = (np.arange(spp) * ((spp // 3) | 1)) % spp
+        lens = net[order][:, 1:3]
+    else:
+        lens = np.stack([(np.arange(spp) + rng.random(spp)) / spp,
+                         (rng.permutation(spp) + rng.random(spp)) / spp], axis=1)
+    out = np.empty((n, 3))
+    for g in range(groups):
+        ab = (lens + rng.random(2)) % 1.0
+        u, v = map_lens(ab[:, 0], ab[:, 1], lens_shape)
+        i = g + groups * np.arange(spp)
+        out[i, 0], out[i, 1] = u, v
+    out[:, 2] = (np.arange(n) + 0.5) / n
+    return out
+
+
+def interleave_groups(width: int, height: int, n_groups: int, row0: int = 0) -> np.ndarray:
+    """Group of each pixel, (height, width) int: neighbouring pixels use different
+    groups of tuples, in a repeating interleaved pattern."""
+    ys, xs = np.mgrid[row0:row0 + height, 0:width]
+    stride = max(1, int(round(np.sqrt(n_groups)))) | 1
+    return (xs + stride * ys) % n_groups
+
+
+def _interleave_samples(width: int, height: int, spp: int, seed: int, *, lens: bool, motion: bool,
+                        n_tuples: int, lens_shape: str, rows: tuple[int, int] | None) -> SampleSet:
+    """Interleave UVT: pixel group g takes tuples g, g + G, g + 2G, ... (G = n / spp),
+    so each pixel sees spp of the n tuples, spread in time; (x, y) stay per-sample
+    stratified (the t-ordered net, or stratified when spp is not a power of two)."""
+    tuples = interleave_tuple_set(n_tuples, spp, lens_shape)
+    base = make_samples(width, height, spp, seed, lens=False, motion=False,
+                        pattern="net" if spp & (spp - 1) == 0 else "stratified", rows=rows)
+    if not lens:
+        tuples[:, :2] = 0.0
+    if not motion:
+        tuples[:, 2] = 0.5
+    tuples = tuples.astype(np.float32).astype(np.float64)  # exactly the samples' float32 values
+    groups = n_tuples // spp
+    g = interleave_groups(width, base.height, groups, base.row0).reshape(-1, 1)
+    tup = (g + groups * np.arange(spp)[None, :]).reshape(-1).astype(np.int8)
+    return SampleSet(x=base.x, y=base.y, u=tuples[tup, 0].astype(np.float32), v=tuples[tup, 1].astype(np.float32),
+                     t=tuples[tup, 2].astype(np.float32), spp=spp, width=width, height=base.height, lens=lens,
+                     motion=motion, row0=base.row0, tuples=tuples, tup=tup)

@@ -452,3 +452,48 @@ def test_discrepancy_ranks_the_patterns():
 
     d = {p: mean_disc(p) for p in ("net", "sobol", "stratified", "random")}
     assert d["net"] < d["random"] / 3 and d["sobol"] < d["random"] / 3 and d["stratified"] < d["random"]
+
+
+# ---------------------------------------------------------------------------
+# Interleave UVT
+# ---------------------------------------------------------------------------
+
+
+def test_interleave_pixels_share_a_fixed_tuple_set():
+    s = make_samples(16, 8, 4, 3, lens=True, motion=True, pattern="interleave", interleave_tuples=16)
+    assert s.tuples.shape == (16, 3) and s.tup.shape == (16 * 8 * 4,)
+    # every sample carries exactly its tuple's (u, v, t)
+    np.testing.assert_array_equal(s.u, s.tuples[s.tup, 0].astype(np.float32))
+    np.testing.assert_array_equal(s.t, s.tuples[s.tup, 2].astype(np.float32))
+    per_pixel = s.tup.reshape(-1, 4)
+    # a pixel's tuples are distinct, one per 1/spp time stratum, sorted by t
+    assert all(len(set(p)) == 4 for p in per_pixel)
+    t = s.t.reshape(-1, 4)
+    assert np.all(np.diff(t, axis=1) > 0)
+    np.testing.assert_array_equal(np.floor(t * 4), np.tile(np.arange(4), (len(t), 1)))
+    # neighbouring pixels use all n tuples between them
+    assert set(per_pixel[:4].ravel()) == set(range(16))
+    assert np.all(np.hypot(s.tuples[:, 0], s.tuples[:, 1]) <= 1.0)
+
+
+def test_interleave_tuple_set_is_deterministic_and_seed_independent():
+    a = make_samples(8, 8, 8, 1, lens=True, motion=True, pattern="interleave", interleave_tuples=64)
+    b = make_samples(8, 8, 8, 2, lens=True, motion=True, pattern="interleave", interleave_tuples=64)
+    np.testing.assert_array_equal(a.tuples, b.tuples)  # a fixed hardware table
+    assert not np.array_equal(a.x, b.x)  # the (x, y) jitter still follows the seed
+
+
+def test_interleave_lens_points_per_group_are_stratified():
+    # within one group (one pixel's tuples) the lens points, mapped back to the
+    # square, form a (0, m, 2)-net up to a shift: one point per 1/spp column
+    from pipeline_sim.sampling import interleave_tuple_set
+
+    tup = interleave_tuple_set(64, 16, lens_shape="square")
+    for g in range(4):
+        u = (tup[g::4, 0] + 1.0) / 2.0
+        assert sorted(np.floor(u * 16).astype(int)) == list(range(16))
+
+
+def test_interleave_needs_spp_dividing_the_tuple_count():
+    with pytest.raises(UserError, match="must divide"):
+        make_samples(4, 4, 3, 0, lens=True, motion=True, pattern="interleave", interleave_tuples=16)

@@ -18,9 +18,10 @@ W, H = 48, 32
 
 
 def assert_conservative(q, r, lx, ly, seed, tile_size=8, coarse_factor=2, edge_test=True, lens_bounds=True,
-                        depth_w=None, gamma="triangle"):
+                        depth_w=None, gamma="triangle", algorithm="hierarchical", edge_solver="linearized"):
     setup, alive, kept = setup_and_tiles(q, r, lx, ly, W, H, tile_size, coarse_factor, edge_test, lens_bounds,
-                                         depth_w=depth_w, gamma=gamma)
+                                         depth_w=depth_w, gamma=gamma, algorithm=algorithm,
+                                         edge_solver=edge_solver)
     rng = np.random.default_rng(seed)
     pts = sample_inside_points(setup, 0, rng, 200, W, H)
     if not pts:
@@ -42,6 +43,11 @@ def assert_conservative(q, r, lx, ly, seed, tile_size=8, coarse_factor=2, edge_t
         assert kept["t_lo"][i] <= t <= kept["t_hi"][i], "t^ excludes a covered sample"
         assert kept["u_lo"][i] <= u <= kept["u_hi"][i], "u^ excludes a covered sample"
         assert kept["v_lo"][i] <= v <= kept["v_hi"][i], "v^ excludes a covered sample"
+        if "lines" in kept:  # two-stage culling: evaluated in float32, as the sample tester does
+            ln = kept["lines"][i]
+            t32, u32, v32 = np.float32(t), np.float32(u), np.float32(v)
+            assert t32 >= ln[0] + ln[1] * u32 and t32 <= ln[2] + ln[3] * u32, "a time line in u excludes it"
+            assert t32 >= ln[4] + ln[5] * v32 and t32 <= ln[6] + ln[7] * v32, "a time line in v excludes it"
         # float32 depth carries rounding (the sample tester clamps it into z^)
         tol = 1e-4 * (1 + abs(z))
         assert kept["z_lo"][i] - tol <= z <= kept["z_hi"][i] + tol, "z^ excludes a covered sample's depth"
@@ -68,6 +74,36 @@ def test_tile_test_conservative_defocus_only(tri, seed):
        st.sampled_from([1, 3]))
 def test_tile_test_conservative_tile_sizes(tri, seed, tile_size, coarse):
     assert_conservative(*tri, seed, tile_size=tile_size, coarse_factor=coarse)
+
+
+ALGORITHMS = ["bbox", "hull", "dual_space", "two_stage"]
+
+
+@given(moving_triangle(), st.integers(0, 2**31), st.sampled_from(ALGORITHMS), st.sampled_from([1, 4, 8]))
+def test_every_algorithm_conservative_5d(tri, seed, algorithm, tile_size):
+    assert_conservative(*tri, seed, tile_size=tile_size, algorithm=algorithm)
+
+
+@given(moving_triangle(lens=False), st.integers(0, 2**31), st.sampled_from(ALGORITHMS), st.sampled_from([1, 8]))
+def test_every_algorithm_conservative_motion_only(tri, seed, algorithm, tile_size):
+    assert_conservative(*tri, seed, tile_size=tile_size, algorithm=algorithm)
+
+
+@given(moving_triangle(motion=False), st.integers(0, 2**31), st.sampled_from(ALGORITHMS), st.sampled_from([1, 8]))
+def test_every_algorithm_conservative_defocus_only(tri, seed, algorithm, tile_size):
+    assert_conservative(*tri, seed, tile_size=tile_size, algorithm=algorithm)
+
+
+@given(moving_triangle(lens=False), st.integers(0, 2**31), st.sampled_from([1, 4, 8]),
+       st.sampled_from([1, 2]))
+def test_quadratic_edge_solver_conservative(tri, seed, tile_size, coarse):
+    """The per-tile quadratic edge test (exact time intervals per pixel at tile size 1)."""
+    assert_conservative(*tri, seed, tile_size=tile_size, coarse_factor=coarse, edge_solver="quadratic")
+
+
+@given(moving_triangle(perspective=True), st.integers(0, 2**31), st.sampled_from(ALGORITHMS + ["hierarchical"]))
+def test_every_algorithm_depth_bounds_conservative(tri, seed, algorithm):
+    assert_conservative(*tri, seed, tile_size=4, depth_w=PERSPECTIVE, algorithm=algorithm)
 
 
 @given(moving_triangle(perspective=True), st.integers(0, 2**31), st.sampled_from([1, 4, 16]))

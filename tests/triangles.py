@@ -59,32 +59,38 @@ def moving_triangle(draw, *, lens=True, motion=True, allow_w_cross=True, scale=1
 
 
 def setup_and_tiles(q, r, lx, ly, width=48, height=32, tile_size=8, coarse_factor=2, edge_test=True,
-                    lens_bounds=True, backface_culling=False, depth_w=None, gamma="triangle"):
+                    lens_bounds=True, backface_culling=False, depth_w=None, gamma="triangle",
+                    algorithm="hierarchical", edge_solver="linearized", tuples=None):
     """Run triangle setup, the traverser and the tile test on one draw.
 
-    Returns (setup, survivors of setup, tile records kept by the tile test).
+    ``algorithm`` is any tile-test algorithm; ``tuples`` the (n, 3) (u, v, t)
+    set of Interleave UVT. Returns (setup, survivors of setup, tile records
+    kept by the tile test).
     """
     d = draw_from_clip(q, r, lx, ly, width=width, height=height)
     d.depth_w = depth_w
     arch = load_arch(overrides=[f"tile_traverser.coarse_factor={coarse_factor}",
                                 f"tile_test.edge_test={'true' if edge_test else 'false'}",
                                 f"tile_test.lens_bounds={'true' if lens_bounds else 'false'}",
-                                f"tile_test.gamma='{gamma}'",
+                                f"tile_test.gamma='{gamma}'", f"tile_test.algorithm='{algorithm}'",
+                                f"tile_test.edge_solver='{edge_solver}'",
+                                f"pipeline.sample_pattern='{'interleave' if tuples is not None else 'net'}'",
                                 f"triangle_setup.backface_culling={'true' if backface_culling else 'false'}"])
-    setup = TriangleSetup(arch.triangle_setup, d, tile_size)
+    setup = TriangleSetup(arch.triangle_setup, d, tile_size, hull=algorithm == "hull")
     ids = np.arange(d.n, dtype=np.int64)
     alive, _, _ = setup.run(ids)
-    trav = TileTraverser(arch.tile_traverser, setup.table, tile_size, width, height)
+    trav = TileTraverser(arch.tile_traverser, setup.table, tile_size, width, height,
+                         coarse_test=algorithm == "hierarchical")
     tiles, _, _ = trav.run(alive)
-    tt = TileTest(arch.tile_test, setup.table, tile_size, width, height, depth_w)
+    tt = TileTest(arch.tile_test, setup.table, tile_size, width, height, depth_w, tuples=tuples)
     kept, _, _ = tt.run(tiles)
     return setup, alive, kept
 
 
-def sample_inside_points(setup, tri, rng, n, width, height):
+def sample_inside_points(setup, tri, rng, n, width, height, tuples=None):
     """Random (x, y, t, u, v) samples that the pipeline's exact test accepts.
 
-    Picks (t, u, v), a random point of the triangle there (positive
+    Picks (t, u, v) (a random row of ``tuples`` (u, v, t) when given), a random point of the triangle there (positive
     barycentric combination in 2DH with w > 0), keeps those on screen that
     ``inside_test`` accepts. Returns a list of (x, y, t, u, v, z).
     """
@@ -96,6 +102,8 @@ def sample_inside_points(setup, tri, rng, n, width, height):
         rad = np.sqrt(rng.uniform(0, 1))
         u = np.float32(rad * np.cos(a))
         v = np.float32(rad * np.sin(a))
+        if tuples is not None:
+            u, v, t = (np.float32(c) for c in tuples[rng.integers(len(tuples))])
         kind = rng.integers(3)
         if kind == 0:  # anywhere inside
             lam = rng.dirichlet([1, 1, 1])

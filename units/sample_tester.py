@@ -168,12 +168,15 @@ def _f32_at_most(a):
 
 
 @nb.njit(cache=True, inline="always")
-def _mark(j0, j1, general, rt, ru, rv, rx, ry, colf, cand, fpx0, fy, iv, neps, tc):
+def _mark(j0, j1, general, extra, rt, ru, rv, rx, ry, rtup, colf, cand, fpx0, fy, iv, ln, mk, neps, tc):
     """Pass 1 over samples [j0, j1) of a tile row: interval test and float32
     edge functions, branch-free. Marks as candidates the samples in the
     intervals that no edge excludes by more than the float32 error bound.
     ``iv`` holds (t_lo, t_hi, u_lo, u_hi, v_lo, v_hi) and ``tc`` the
-    triangle's constants (see ``_pack``). Returns (in the intervals, in t^,
+    triangle's constants. With ``extra`` (two-stage culling, Interleave UVT)
+    a sample is in the intervals only if it also lies between the tile's time
+    lines ``ln`` (t >= c + s u, t <= c + s u, then the same in v; 001 §3.4)
+    and its tuple's bit is set in ``mk``. Returns (in the intervals, in t^,
     candidates) as int32 counts."""
     ta, tb, ua, ub, va, vb = iv[0], iv[1], iv[2], iv[3], iv[4], iv[5]
     X00, X01, X02, Y00, Y01, Y02, W00, W01, W02 = tc[0], tc[1], tc[2], tc[3], tc[4], tc[5], tc[6], tc[7], tc[8]
@@ -195,6 +198,9 @@ def _mark(j0, j1, general, rt, ru, rv, rx, ry, colf, cand, fpx0, fy, iv, neps, t
     ry = ry[j0:j1]
     colf = colf[j0:j1]
     cand = cand[j0:j1]
+    lc, ls, hc, hs, mc, ms, kc, ks = ln[0], ln[1], ln[2], ln[3], ln[4], ln[5], ln[6], ln[7]
+    if extra:
+        rtup = rtup[j0:j1]
     if general:
         for j in range(j1 - j0):
             t = rt[j]
@@ -202,6 +208,9 @@ def _mark(j0, j1, general, rt, ru, rv, rx, ry, colf, cand, fpx0, fy, iv, neps, t
             v = rv[j]
             in_t = (t >= ta) & (t <= tb)
             in_all = in_t & (u >= ua) & (u <= ub) & (v >= va) & (v <= vb)
+            if extra:
+                in_all = (in_all & (t >= lc + ls * u) & (t <= hc + hs * u) & (t >= mc + ms * v)
+                          & (t <= kc + ks * v) & (((mk >> np.uint64(rtup[j])) & np.uint64(1)) != 0))
             x = (fpx0 + colf[j]) + rx[j]
             y = fy + ry[j]
             X0 = _at(X00, dX0, LX0, dLX0, t, u)
@@ -249,7 +258,7 @@ def _mark(j0, j1, general, rt, ru, rv, rx, ry, colf, cand, fpx0, fy, iv, neps, t
 
 @nb.njit(cache=True)
 def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, noread_in,
-                       tile_size, width, height, spp, sx, sy, su, sv, st,
+                       lines, masks, tile_size, width, height, spp, sx, sy, su, sv, st, stup,
                        p0, dp, l0, dl, edge_eps, backface_culling, specialize,
                        out_tri, out_pix, out_sidx, out_z, out_b0, out_b1, out_b2, out_noread, ops, events):
     """Interval lookup on the tile's samples and exact inside tests (002 §5; 004 eq. 3, 10-13).
@@ -281,6 +290,10 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
     one = np.float32(1.0)
     tc = np.empty(40, np.float32)  # the current triangle's constants
     iv = np.empty(6, np.float32)  # the current tile's intervals
+    ln = np.empty(8, np.float32)  # the current tile's time lines (two-stage culling)
+    has_lines = lines.shape[0] == tri_ids.shape[0]
+    has_masks = masks.shape[0] == tri_ids.shape[0]
+    extra_tests = 0
     for i in range(tri_ids.shape[0]):
         tri = tri_ids[i]
         ta = _f32_at_least(t_lo[i])
@@ -313,6 +326,14 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
         # the dimensions this triangle uses: 0 = 2D, 1 = xyt, 2 = xyuv, 3 = xyuvt
         dims = (1 if moving else 0) + (2 if lens else 0)
         general = dims != 0 or not specialize
+        # two-stage lines and tuple masks matter only where t, u or v do
+        extra = (has_lines or has_masks) and general
+        mk = masks[i] if has_masks else np.uint64(0xFFFFFFFFFFFFFFFF)
+        if has_lines:
+            for c_ in range(8):
+                ln[c_] = lines[i, c_]
+        else:
+            ln[0], ln[1], ln[2], ln[3], ln[4], ln[5], ln[6], ln[7] = 0, 0, 1, 0, 0, 0, 1, 0
         # 2D path: vertices and edges once per tile (t, u, v do not matter)
         sa0, sb0, sc0, sa1, sb1, sc1, sa2, sb2, sc2, sD = _edges(X00, Y00, W00, X01, Y01, W01, X02, Y02, W02)
         for c_, val in enumerate((X00, X01, X02, Y00, Y01, Y02, W00, W01, W02, dX0, dX1, dX2, dY0, dY1, dY2,
@@ -344,8 +365,11 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
             # one branch-free loop over the whole row, which numba vectorizes: on a
             # CPU that beats a per-pixel range lookup even for narrow t^ (the
             # modelled hardware's lookups are still counted as such)
-            row_tested, row_range, row_cand = _mark(0, length, general, rt, ru, rv, rx, ry, colf, cand, fpx0,
-                                                    fy, iv, neps, tc)
+            rtup = stup[start:start + length] if has_masks else stup
+            row_tested, row_range, row_cand = _mark(0, length, general, extra, rt, ru, rv, rx, ry, rtup, colf,
+                                                    cand, fpx0, fy, iv, ln, mk, neps, tc)
+            if extra:
+                extra_tests += row_range
             tested += row_tested
             by_dims[dims if specialize else 3] += row_tested
             in_range += row_range
@@ -393,6 +417,9 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
     while (1 << log_spp) <= spp:
         log_spp += 1
     ops[OP_CMP] += 2 * searches * log_spp
+    # per sample in t^: four time lines (4 madd + 4 compares) or a mask bit (1 compare)
+    ops[OP_MADD] += extra_tests * (4 if has_lines else 0)
+    ops[OP_CMP] += extra_tests * (4 if has_lines else 1)
     events[EV_TESTED] += tested
     for d_ in range(4):
         events[EV_2D + d_] += by_dims[d_]
@@ -400,6 +427,11 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
     events[EV_PIXELS] += pixels
     events[EV_COVERED] += n
     return n
+
+
+_NO_LINES = np.zeros((0, 8), np.float32)
+_NO_MASKS = np.zeros(0, np.uint64)
+_NO_TUPLES = np.zeros(1, np.int8)
 
 
 class SampleTester:
@@ -431,8 +463,10 @@ class SampleTester:
         t = self.table
         m = sample_test_kernel(tiles["tri"], tiles["tx"], tiles["ty"], tiles["t_lo"], tiles["t_hi"],
                                tiles["u_lo"], tiles["u_hi"], tiles["v_lo"], tiles["v_hi"], tiles["z_lo"],
-                               tiles["z_hi"], tiles["noread"],
+                               tiles["z_hi"], tiles["noread"], tiles.get("lines", _NO_LINES),
+                               tiles.get("mask", _NO_MASKS),
                                ts, s.width, s.height, s.spp, s.x, s.y, s.u, s.v, s.t,
+                               s.tup if s.tup is not None else _NO_TUPLES,
                                t.p0_32, t.dp_32, t.l0_32, t.dl_32, t.edge_eps, self.backface_culling,
                                self.specialize,
                                out["tri"], out["pix"], out["sidx"], out["z"], out["b0"], out["b1"],

@@ -30,17 +30,18 @@ import numba as nb
 import numpy as np
 
 from pipeline_sim.counters import N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+from units.rounding import F32_REL, MARGIN_PX
+from units.tile_test_dual import dual_time_interval, two_stage_lines
+from units.tile_test_hull import hull_overlaps_tile
+from units.tile_test_interleave import interleave_mask
+from units.tile_test_quadratic import quadratic_time_interval
 from units.triangle_setup import FLAG_EDGE, FLAG_LENS, FLAG_PLANE, FLAG_WPOS
 
-EVENTS = ("rejected_box", "rejected_edge", "rejected_lens", "rejected_frustum_time", "accepted")
-EV_REJ_BOX, EV_REJ_EDGE, EV_REJ_LENS, EV_REJ_TIME, EV_ACCEPT = range(len(EVENTS))
+EVENTS = ("rejected_box", "rejected_edge", "rejected_lens", "accepted", "rejected_hull", "rejected_dual_time",
+          "rejected_two_stage", "rejected_tuples")
+(EV_REJ_BOX, EV_REJ_EDGE, EV_REJ_LENS, EV_ACCEPT, EV_REJ_HULL, EV_REJ_DUAL, EV_REJ_TWO,
+ EV_REJ_TUPLES) = range(len(EVENTS))
 
-MARGIN_PX = 1.0 / 64.0  # pixel margin around every tile, absorbs rounding
-# The sample tester works on float32 vertices (rounded by up to 2^-24 of their
-# magnitude, and lerped in float32): every float64 bound here is widened by
-# this fraction of the magnitudes of its terms so it stays conservative
-# against that rounding, even for vertices millions of pixels away.
-F32_REL = 1e-6
 
 
 @nb.njit(cache=True)
@@ -271,15 +272,29 @@ def plane_w_bounds(plane_n, plane_d, tri, x0, x1, y0, y1, ta, tb, ops):
     return w_lo, w_hi
 
 
+ALG_HIERARCHICAL, ALG_BBOX, ALG_HULL, ALG_DUAL, ALG_TWO_STAGE, ALG_INTERLEAVE = range(6)
+ALGORITHM_CODES = {"hierarchical": ALG_HIERARCHICAL, "bbox": ALG_BBOX, "hull": ALG_HULL, "dual_space": ALG_DUAL,
+                   "two_stage": ALG_TWO_STAGE, "interleave_uvt": ALG_INTERLEAVE}
+# the float32 evaluation of a time line c + s u in the sample tester rounds by
+# at most a few ulps of |c| + |s|; lines are widened by this fraction of it
+LINE_F32_REL = 4.0 * 2.0**-23
+
+
 @nb.njit(cache=True)
-def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, bbox, edge_test, gamma_per_tile,
-                     lens_bounds, clips,
-                     p0, dp, l0, dl, t_span, flags, edge_h, edge_gamma, edge_g, edge_fg, plane_n, plane_d,
-                     depth_c1, depth_c0,
-                     out_keep, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, ops, events):
+def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, algorithm, edge_test, quadratic,
+                     gamma_per_tile, lens_bounds, clips,
+                     p0, dp, l0, dl, t_span, flags, edge_f, edge_h, edge_gamma, edge_g, edge_fg, plane_n, plane_d,
+                     hull, hull_n, tuples, depth_c1, depth_c0,
+                     out_keep, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, lines, mask, ops, events):
     """Test each (triangle, tile) record; fill its intervals and ``out_keep``.
 
-    002 §4.1-4.2 (t^), lens bounds (u^, v^), 000 App. A (z^).
+    ``algorithm`` (ALG_*): hierarchical, 002 §4.1-4.2 (t^ from the moving box
+    and the linearized or, with ``quadratic``, the exact quadratic edges) and
+    lens bounds (u^, v^); BBOX (no rejection); the convex hull of McGuire et
+    al. 2010 (001 §3.2); dual-space bounds (Laine et al. 2011, 001 §2);
+    two-stage culling (001 §3.3-3.4), which also writes per-record time
+    ``lines`` linear in u and v; Interleave UVT, which writes a tuple
+    ``mask``. z^ from 000 App. A for all of them; clip planes (000 §2).
     """
     for i in range(tri_ids.shape[0]):
         tri = tri_ids[i]
@@ -290,33 +305,84 @@ def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, bbox, ed
         y1 = min((tile_y[i] + 1) * tile_size, height) + MARGIN_PX
         ta = max(t_span[tri, 0], clips[0])  # user clip planes bound every interval (000 §2)
         tb = min(t_span[tri, 1], clips[1])
-        if bbox:  # no tile test: every sample of the time span, every lens position
-            lo, hi = ta, tb
-        else:
-            lo, hi = box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ta, tb, ops)
         out_keep[i] = False
-        if lo > hi:
-            events[EV_REJ_BOX] += 1
-            continue
-        if edge_test and not bbox and (fl & FLAG_EDGE) != 0:
-            lo, hi = _edge_time_interval(edge_h, edge_gamma, edge_g, edge_fg, gamma_per_tile, tri, x0, x1, y0, y1,
-                                         lo, hi, ops)
+        wpos = (fl & FLAG_WPOS) != 0
+        has_lens = (fl & FLAG_LENS) != 0
+        ulo, uhi, vlo, vhi = clips[2], clips[3], clips[4], clips[5]
+        lo, hi = ta, tb
+        if algorithm == ALG_HIERARCHICAL:
+            lo, hi = box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ta, tb, ops)
             if lo > hi:
-                events[EV_REJ_EDGE] += 1
+                events[EV_REJ_BOX] += 1
                 continue
+            if edge_test and (fl & FLAG_EDGE) != 0:
+                if quadratic:
+                    lo, hi = quadratic_time_interval(edge_f, edge_g, edge_h, tri, x0, x1, y0, y1, lo, hi, ops)
+                else:
+                    lo, hi = _edge_time_interval(edge_h, edge_gamma, edge_g, edge_fg, gamma_per_tile, tri,
+                                                 x0, x1, y0, y1, lo, hi, ops)
+                if lo > hi:
+                    events[EV_REJ_EDGE] += 1
+                    continue
+        elif algorithm == ALG_HULL:
+            if wpos and not has_lens and hull_n[tri] > 0:
+                # the sample tester's float32 vertices move the true hull by ~F32_REL of its coordinates
+                mag = 1.0
+                for k in range(hull_n[tri]):
+                    mag = max(mag, abs(hull[tri, k, 0]) + abs(hull[tri, k, 1]))
+                pad = F32_REL * mag
+                if not hull_overlaps_tile(hull, hull_n, tri, x0 - pad, x1 + pad, y0 - pad, y1 + pad, ops):
+                    events[EV_REJ_HULL] += 1
+                    continue
+        elif algorithm == ALG_INTERLEAVE:
+            mk = interleave_mask(p0, dp, l0, dl, tri, tuples, x0, x1, y0, y1, ta, tb, ops)
+            if mk == 0:
+                events[EV_REJ_TUPLES] += 1
+                continue
+            mask[i] = mk
         # a triangle without lens shift is seen alike from every lens position
-        ulo, uhi, vlo, vhi = -1.0, 1.0, -1.0, 1.0
-        if lens_bounds and not bbox and (fl & FLAG_LENS) != 0 and (fl & FLAG_WPOS) != 0:
-            ulo, uhi = _lens_interval(p0, dp, l0, dl, tri, 0, x0, x1, lo, hi, ops)
+        lens_live = has_lens and wpos and (
+            (algorithm == ALG_HIERARCHICAL and lens_bounds) or algorithm == ALG_DUAL or algorithm == ALG_TWO_STAGE)
+        if lens_live:  # 001 §3.3 (stage 1): lens bounds from the vertices at the ends of t^
+            a, b = _lens_interval(p0, dp, l0, dl, tri, 0, x0, x1, lo, hi, ops)
+            ulo, uhi = max(ulo, a), min(uhi, b)
             if ulo > uhi:
                 events[EV_REJ_LENS] += 1
                 continue
-            vlo, vhi = _lens_interval(p0, dp, l0, dl, tri, 1, y0, y1, lo, hi, ops)
+            a, b = _lens_interval(p0, dp, l0, dl, tri, 1, y0, y1, lo, hi, ops)
+            vlo, vhi = max(vlo, a), min(vhi, b)
             if vlo > vhi:
                 events[EV_REJ_LENS] += 1
                 continue
+        if algorithm == ALG_DUAL and wpos:
+            lo, hi = dual_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ulo, uhi, vlo, vhi, lo, hi, ops)
+            if lo > hi:
+                events[EV_REJ_DUAL] += 1
+                continue
+        if algorithm == ALG_TWO_STAGE:
+            if wpos:  # 001 §3.4 (stage 2): time bounds linear in u (x axis) and v (y axis)
+                l_c, l_s, h_c, h_s = two_stage_lines(p0, dp, l0, dl, tri, 0, x0, x1, ulo, uhi, lo, hi, ops)
+                m_c, m_s, k_c, k_s = two_stage_lines(p0, dp, l0, dl, tri, 1, y0, y1, vlo, vhi, lo, hi, ops)
+            else:
+                l_c, l_s, h_c, h_s = lo, 0.0, hi, 0.0
+                m_c, m_s, k_c, k_s = lo, 0.0, hi, 0.0
+            lo = max(lo, min(l_c + l_s * ulo, l_c + l_s * uhi), min(m_c + m_s * vlo, m_c + m_s * vhi))
+            hi = min(hi, max(h_c + h_s * ulo, h_c + h_s * uhi), max(k_c + k_s * vlo, k_c + k_s * vhi))
+            ops[OP_MADD] += 8
+            ops[OP_CMP] += 8
+            if lo > hi:
+                events[EV_REJ_TWO] += 1
+                continue
+            lines[i, 0] = l_c - LINE_F32_REL * (abs(l_c) + abs(l_s))
+            lines[i, 1] = l_s
+            lines[i, 2] = h_c + LINE_F32_REL * (abs(h_c) + abs(h_s))
+            lines[i, 3] = h_s
+            lines[i, 4] = m_c - LINE_F32_REL * (abs(m_c) + abs(m_s))
+            lines[i, 5] = m_s
+            lines[i, 6] = k_c + LINE_F32_REL * (abs(k_c) + abs(k_s))
+            lines[i, 7] = k_s
         zl, zh = -1.0, 1.0
-        if (fl & FLAG_WPOS) != 0:
+        if wpos:
             zl, zh = np.inf, -np.inf
             for s in range(2):
                 t = lo if s == 0 else hi
@@ -338,8 +404,6 @@ def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, bbox, ed
             ops[OP_RCP] += 6
             ops[OP_MUL] += 6
             ops[OP_CMP] += 12
-        ulo, uhi = max(ulo, clips[2]), min(uhi, clips[3])
-        vlo, vhi = max(vlo, clips[4]), min(vhi, clips[5])
         ops[OP_CMP] += 6
         if ulo > uhi or vlo > vhi:
             events[EV_REJ_LENS] += 1
@@ -363,32 +427,48 @@ class TileTest:
     events = EVENTS
 
     def __init__(self, config, table, tile_size: int, width: int, height: int,
-                 depth_w: tuple[float, float] | None = None):
+                 depth_w: tuple[float, float] | None = None, tuples: np.ndarray | None = None):
         self.config = config
         self.table = table
         self.tile_size = tile_size
         self.width = width
         self.height = height
         self.depth_c1, self.depth_c0 = depth_w if depth_w is not None else (0.0, 0.0)
+        self.algorithm = ALGORITHM_CODES[config.algorithm]
+        if self.algorithm == ALG_INTERLEAVE and tuples is None:
+            raise ValueError("interleave_uvt needs the sample set's (u, v, t) tuples")
+        self.tuples = tuples if tuples is not None else np.zeros((0, 3))
 
     def run(self, tiles: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
-        """Test a batch of tile records; return the survivors with intervals."""
+        """Test a batch of tile records; return the survivors with intervals.
+
+        Two-stage culling adds ``lines`` (n, 8) float32 per record: t >= c + s u,
+        t <= c + s u (x axis), then the same in v (y axis); Interleave UVT adds
+        ``mask``, the (n,) uint64 bit set of tuples that may cover the tile.
+        """
         n = len(tiles["tri"])
         keep = np.zeros(n, np.bool_)
         iv = {name: np.empty(n) for name in ("t_lo", "t_hi", "u_lo", "u_hi", "v_lo", "v_hi", "z_lo", "z_hi")}
+        lines = np.empty((n if self.algorithm == ALG_TWO_STAGE else 0, 8))
+        mask = np.zeros(n if self.algorithm == ALG_INTERLEAVE else 0, np.uint64)
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
         t = self.table
+        cfg = self.config
         tile_test_kernel(tiles["tri"], tiles["tx"], tiles["ty"], self.tile_size, self.width, self.height,
-                         self.config.algorithm == "bbox", self.config.edge_test,
-                         self.config.gamma == "tile", self.config.lens_bounds,
-                         self.config.clips,
-                         t.p0, t.dp, t.l0, t.dl,
-                         t.t_span, t.flags, t.edge_h, t.edge_gamma, t.edge_g, t.edge_fg, t.plane_n, t.plane_d, self.depth_c1,
+                         self.algorithm, cfg.edge_test, cfg.edge_solver == "quadratic", cfg.gamma == "tile",
+                         cfg.lens_bounds, cfg.clips,
+                         t.p0, t.dp, t.l0, t.dl, t.t_span, t.flags, t.edge_f, t.edge_h, t.edge_gamma, t.edge_g,
+                         t.edge_fg, t.plane_n, t.plane_d, t.hull, t.hull_n, self.tuples, self.depth_c1,
                          self.depth_c0, keep,
                          iv["t_lo"], iv["t_hi"], iv["u_lo"], iv["u_hi"], iv["v_lo"], iv["v_hi"],
-                         iv["z_lo"], iv["z_hi"], ops, events)
+                         iv["z_lo"], iv["z_hi"], lines if len(lines) else np.empty((n, 8)),
+                         mask if len(mask) else np.zeros(n, np.uint64), ops, events)
         out = {name: arr[keep] for name, arr in tiles.items()}
         out.update({name: arr[keep] for name, arr in iv.items()})
+        if self.algorithm == ALG_TWO_STAGE:
+            out["lines"] = lines[keep].astype(np.float32)
+        if self.algorithm == ALG_INTERLEAVE:
+            out["mask"] = mask[keep]
         out["noread"] = np.zeros(len(out["tri"]), np.bool_)  # set by z-cull when it runs
         return out, ops, events

@@ -29,6 +29,7 @@ import numba as nb
 import numpy as np
 
 from pipeline_sim.counters import N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+from units.tile_test_hull import hull_setup
 
 EVENTS = (
     "culled_frustum",
@@ -69,6 +70,7 @@ class TriangleTable:
     bounds: np.ndarray  # (N,4) int32 px0, px1, py0, py1 (exclusive ends)
     facing: np.ndarray  # (N,) int8: +1 always front, -1 always back, 0 mixed
     flags: np.ndarray  # (N,) int8: bit0 lens live, bit1 w > 0 all shutter, bit2 edge test valid, bit3 moving
+    edge_f: np.ndarray  # (N,3,3) f of each edge (t^2 coefficient), facing-normalized
     edge_h: np.ndarray  # (N,3,3) h of each edge, facing-normalized
     edge_gamma: np.ndarray  # (N,3) upper slope bound Gamma per edge
     edge_g: np.ndarray  # (N,3,3) facing-normalized g of each edge (for Gamma per tile)
@@ -77,6 +79,8 @@ class TriangleTable:
     edge_eps: np.ndarray  # (N,) float32 error bound of a float32 edge-function value
     plane_n: np.ndarray  # (N,2,3) normals of the triangle's plane at t=0 and t=1 (X, Y, W space)
     plane_d: np.ndarray  # (N,2,2,2) [normal, side (+ below / - above), (d0, v)] moving planes
+    hull: np.ndarray  # (N,6,2) screen convex hull of the moving vertices, counter-clockwise (hull algorithm)
+    hull_n: np.ndarray  # (N,) int32 its vertex count; 0 when not computed
 
     @classmethod
     def allocate(cls, n: int) -> "TriangleTable":
@@ -88,10 +92,11 @@ class TriangleTable:
             l0_32=np.zeros((n, 3, 2), f32), dl_32=np.zeros((n, 3, 2), f32),
             t_span=np.zeros((n, 2), f64), bounds=np.zeros((n, 4), np.int32),
             facing=np.zeros(n, np.int8), flags=np.zeros(n, np.int8),
-            edge_h=np.zeros((n, 3, 3), f64), edge_gamma=np.zeros((n, 3), f64),
+            edge_f=np.zeros((n, 3, 3), f64), edge_h=np.zeros((n, 3, 3), f64), edge_gamma=np.zeros((n, 3), f64),
             edge_g=np.zeros((n, 3, 3), f64), edge_fg=np.zeros((n, 3, 3), f64),
             ref=np.zeros((n, 3, 3), f32), edge_eps=np.zeros(n, f32),
             plane_n=np.zeros((n, 2, 3), f64), plane_d=np.zeros((n, 2, 2, 2), f64),
+            hull=np.zeros((n, 6, 2), f64), hull_n=np.zeros(n, np.int32),
         )
 
 
@@ -124,7 +129,7 @@ def _det(x0, y0, w0, x1, y1, w1, x2, y2, w2):
 @nb.njit(cache=True)
 def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_culling,
                  p0, dp, l0, dl, p0_32, dp_32, l0_32, dl_32, t_span, bounds, facing, flags,
-                 edge_h, edge_gamma, edge_g, edge_fg, ref, edge_eps, plane_n, plane_d, depth_planes, status, ops, events):
+                 edge_f, edge_h, edge_gamma, edge_g, edge_fg, ref, edge_eps, plane_n, plane_d, depth_planes, status, ops, events):
     """Triangle setup for the triangles ``ids`` (PIPELINE §2.1; 002 §3-4, 004 eq. 3-5).
 
     Writes the per-triangle tables in place, ``status`` per batch item and
@@ -396,6 +401,7 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
                 mag = (abs(gv[0]) + abs(fv[0])) * max(abs(sx0), abs(sx1)) + (abs(gv[1]) + abs(fv[1])) * max(abs(sy0), abs(sy1)) + abs(gv[2]) + abs(fv[2])
                 edge_gamma[tri, k] = gam + 1e-6 * mag
                 for c in range(3):
+                    edge_f[tri, k, c] = sgn * fv[c]
                     edge_h[tri, k, c] = sgn * hv[c]
                     edge_g[tri, k, c] = sgn * gv[c]
                     edge_fg[tri, k, c] = sgn * (fv[c] + gv[c])
@@ -455,10 +461,11 @@ class TriangleSetup:
     name = "triangle_setup"
     events = EVENTS
 
-    def __init__(self, config, draw, tile_size: int):
+    def __init__(self, config, draw, tile_size: int, hull: bool = False):
         self.config = config
         self.draw = draw
         self.tile_size = tile_size
+        self.hull = hull  # also set up the convex hull of the moving vertices (McGuire et al. 2010)
         self.table = TriangleTable.allocate(draw.n)
 
     def run(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -469,8 +476,20 @@ class TriangleSetup:
         events = np.zeros(len(EVENTS), np.int64)
         setup_kernel(ids, d.q, d.r, d.lens_x, d.lens_y, d.width, d.height, self.tile_size,
                      self.config.backface_culling, t.p0, t.dp, t.l0, t.dl, t.p0_32, t.dp_32,
-                     t.l0_32, t.dl_32, t.t_span, t.bounds, t.facing, t.flags, t.edge_h,
+                     t.l0_32, t.dl_32, t.t_span, t.bounds, t.facing, t.flags, t.edge_f, t.edge_h,
                      t.edge_gamma, t.edge_g, t.edge_fg, t.ref, t.edge_eps, t.plane_n, t.plane_d, self.draw.depth_w is not None,
                      status, ops, events)
         self.last_status = status
-        return ids[status == ST_OK], ops, events
+        kept = ids[status == ST_OK]
+        if self.hull:
+            _hulls(kept, t.p0, t.dp, t.t_span, t.flags, t.hull, t.hull_n, ops)
+        return kept, ops, events
+
+
+@nb.njit(cache=True)
+def _hulls(ids, p0, dp, t_span, flags, hull, hull_n, ops):
+    """Convex hulls of the six projected vertices of the motion-only triangles
+    in front of the camera (McGuire et al. 2010, 001 §3.2)."""
+    for tri in ids:
+        if (flags[tri] & FLAG_WPOS) != 0 and (flags[tri] & FLAG_LENS) == 0:
+            hull_setup(p0, dp, t_span, tri, hull, hull_n, ops)

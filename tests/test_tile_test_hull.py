@@ -1,0 +1,480 @@
+"""Convex-hull bound of 001 §3.2 (McGuire et al. 2010) against independent references.
+
+* the hull of the six projected vertices against scipy.spatial.ConvexHull;
+* conservativeness: brute force over (t, point of the tile) -- a float64 edge
+  prefilter confirmed in exact rational arithmetic -- never finds a covered
+  point in a tile the hull test rejects; adversarial tiles touching the hull
+  exactly, collinear hulls and zero motion;
+* tightness against the bounding box of the six points;
+* the pure-Python path (NUMBA_DISABLE_JIT=1) in a subprocess.
+"""
+
+import json
+import os
+import subprocess
+import sys
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+from hypothesis import assume, given
+from hypothesis import strategies as st
+from scipy.spatial import ConvexHull
+
+from pipeline_sim.config import load_arch
+from pipeline_sim.counters import N_OPS
+from pipeline_sim.draw import draw_from_clip
+from triangles import finite, moving_triangle
+from units.tile_test_hull import hull_overlaps_tile, hull_setup
+from units.triangle_setup import FLAG_WPOS, TriangleSetup
+
+W, H = 48, 32
+ROOT = Path(__file__).resolve().parent.parent
+
+
+# ---------------------------------------------------------------- helpers
+
+
+def compute_hull(p0, dp, t_span, tri=0):
+    n = len(p0)
+    hull = np.full((n, 6, 2), np.nan)
+    hull_n = np.zeros(n, np.int32)
+    ops = np.zeros(N_OPS, np.int64)
+    hull_setup(p0, dp, t_span, tri, hull, hull_n, ops)
+    return hull, hull_n, ops
+
+
+def overlaps(hull, hull_n, tile, tri=0):
+    ops = np.zeros(N_OPS, np.int64)
+    return bool(hull_overlaps_tile(hull, hull_n, tri, float(tile[0]), float(tile[1]), float(tile[2]),
+                                   float(tile[3]), ops))
+
+
+def six_points(p0, dp, t_span, tri=0):
+    """The vertices at ts and te, projected (float64 numpy, independent of the kernel)."""
+    pts = []
+    for t in t_span[tri]:
+        v = p0[tri] + t * dp[tri]
+        pts.append(v[:, :2] / v[:, 3:4])
+    return np.concatenate(pts)
+
+
+def screen_vertices(p0, dp, tri, ts):
+    """(nt, 3, 2) screen positions of the vertices at the times ``ts``."""
+    v = p0[tri][None] + ts[:, None, None] * dp[tri][None]
+    return v[..., :2] / v[..., 3:4]
+
+
+def exact_inside(p0, dp, tri, t, x, y):
+    """Is (x, y) in the closed triangle at time t? Exact rational arithmetic."""
+    F = Fraction
+    ft = F(float(t))
+    v = []
+    for k in range(3):
+        Xk = F(float(p0[tri, k, 0])) + ft * F(float(dp[tri, k, 0]))
+        Yk = F(float(p0[tri, k, 1])) + ft * F(float(dp[tri, k, 1]))
+        Wk = F(float(p0[tri, k, 3])) + ft * F(float(dp[tri, k, 3]))
+        assert Wk > 0
+        v.append((Xk / Wk, Yk / Wk))
+    P = (F(float(x)), F(float(y)))
+
+    def cross(o, a, b):
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+    area = cross(v[0], v[1], v[2])
+    if area != 0:
+        e = [cross(v[k], v[(k + 1) % 3], P) for k in range(3)]
+        return all(c >= 0 for c in e) if area > 0 else all(c <= 0 for c in e)
+    # degenerate: the segment between the extreme vertices (or one point)
+    lo, hi = min(v), max(v)
+    if lo == hi:
+        return P == lo
+    if cross(lo, hi, P) != 0:
+        return False
+    d = (hi[0] - lo[0], hi[1] - lo[1])
+    s = (P[0] - lo[0]) * d[0] + (P[1] - lo[1]) * d[1]
+    return 0 <= s <= d[0] * d[0] + d[1] * d[1]
+
+
+def covered_points(p0, dp, t_span, tri, tile, rng, nt=17, grid=7, nrand=40, limit=None):
+    """Brute force: (t, x, y) samples of the tile (boundary included) inside the triangle.
+
+    A loose float64 edge test picks candidates, exact arithmetic confirms
+    them. Returns the confirmed list (up to ``limit``)."""
+    ts, te = t_span[tri]
+    T = np.unique(np.concatenate([[ts, te], np.linspace(ts, te, nt), rng.uniform(ts, te, 8)]))
+    x0, x1, y0, y1 = tile
+    gx, gy = np.meshgrid(np.linspace(x0, x1, grid), np.linspace(y0, y1, grid))
+    P = np.concatenate([np.stack([gx.ravel(), gy.ravel()], 1),
+                        np.stack([rng.uniform(x0, x1, nrand), rng.uniform(y0, y1, nrand)], 1)])
+    V = screen_vertices(p0, dp, tri, T)  # (nt, 3, 2)
+    scale = max(np.abs(V).max(), np.abs(P).max()) + 1.0
+    tol = 1e-9 * scale * scale
+    e = np.empty((len(T), len(P), 3))
+    for k in range(3):
+        a = V[:, k][:, None]
+        b = V[:, (k + 1) % 3][:, None]
+        e[..., k] = (b[..., 0] - a[..., 0]) * (P[None, :, 1] - a[..., 1]) - (b[..., 1] - a[..., 1]) * (
+            P[None, :, 0] - a[..., 0])
+    cand = np.all(e >= -tol, axis=2) | np.all(e <= tol, axis=2)
+    # and within the triangle's bounding box (the edge test alone accepts the
+    # whole line through a degenerate triangle)
+    btol = 1e-9 * scale
+    for c in range(2):
+        lo = V[:, :, c].min(1)[:, None] - btol
+        hi = V[:, :, c].max(1)[:, None] + btol
+        cand &= (P[None, :, c] >= lo) & (P[None, :, c] <= hi)
+    out = []
+    for it, ip in zip(*np.nonzero(cand)):
+        if exact_inside(p0, dp, tri, T[it], P[ip, 0], P[ip, 1]):
+            out.append((T[it], P[ip, 0], P[ip, 1]))
+            if limit is not None and len(out) >= limit:
+                break
+    return out
+
+
+def adversarial_tiles(hull, hull_n, rng, tri=0):
+    """Tiles that touch the hull exactly from outside: a corner at a hull
+    vertex or at an edge midpoint, the tile extending away from the hull."""
+    n = hull_n[tri]
+    hv = hull[tri, :n]
+    tiles = []
+    for i in range(n):
+        ax, ay = hv[i]
+        for sx in (-1, 1):
+            for sy in (-1, 1):
+                w, h = rng.uniform(0, 6, 2)
+                tiles.append((min(ax, ax + sx * w), max(ax, ax + sx * w), min(ay, ay + sy * h),
+                              max(ay, ay + sy * h)))
+        if n >= 2:
+            bx, by = hv[(i + 1) % n]
+            mx, my = 0.5 * (ax + bx), 0.5 * (ay + by)
+            nx, ny = by - ay, ax - bx  # outward for counter-clockwise order
+            w, h = rng.uniform(0, 6, 2)
+            tx = (mx, mx + w) if nx >= 0 else (mx - w, mx)
+            ty = (my, my + h) if ny >= 0 else (my - h, my)
+            tiles.append((*tx, *ty))
+    return tiles
+
+
+def random_tiles(p0, dp, t_span, hull, hull_n, rng, n, tri=0):
+    """Tiles near the moving triangle: around covered points, hull vertices, in the bbox."""
+    pts = six_points(p0, dp, t_span, tri)
+    lo, hi = pts.min(0), pts.max(0)
+    tiles = []
+    for _ in range(n):
+        kind = rng.integers(4)
+        if kind == 0:  # around a point of the triangle at a random time
+            t = rng.uniform(*t_span[tri])
+            V = screen_vertices(p0, dp, tri, np.array([t]))[0]
+            c = rng.dirichlet([1, 1, 1]) @ V
+        elif kind == 1:  # around a hull vertex
+            c = hull[tri, rng.integers(hull_n[tri])]
+        else:  # anywhere in (or just around) the bounding box
+            c = rng.uniform(lo - 2, hi + 2)
+        size = rng.choice([0.0, 0.5, 2.0, 8.0]) * rng.uniform(0.2, 1.0, 2)
+        off = rng.uniform(0, 1, 2) * size
+        tiles.append((c[0] - off[0], c[0] - off[0] + size[0], c[1] - off[1], c[1] - off[1] + size[1]))
+    return tiles
+
+
+def assert_conservative(p0, dp, t_span, seed, n_random=12, tri=0):
+    hull, hull_n, ops = compute_hull(p0, dp, t_span, tri)
+    assert 1 <= hull_n[tri] <= 6
+    assert ops.sum() > 0
+    rng = np.random.default_rng(seed)
+    touching = adversarial_tiles(hull, hull_n, rng, tri)
+    for tile in touching:
+        assert overlaps(hull, hull_n, tile, tri), f"tile {tile} touching the hull was rejected"
+    for tile in touching + random_tiles(p0, dp, t_span, hull, hull_n, rng, n_random, tri):
+        if not overlaps(hull, hull_n, tile, tri):
+            hits = covered_points(p0, dp, t_span, tri, tile, rng, limit=1)
+            assert not hits, f"tile {tile} rejected but covers (t, x, y) = {hits[0]}"
+
+
+# ---------------------------------------------------------------- 1. hull vs scipy
+
+
+def random_moving_table(rng, n, spread=40.0):
+    p0 = np.zeros((n, 3, 4))
+    dp = np.zeros((n, 3, 4))
+    w0 = rng.uniform(0.2, 4, (n, 3))
+    w1 = rng.uniform(0.2, 4, (n, 3))
+    p0[..., 3] = w0
+    p0[..., :2] = rng.uniform(-spread, spread, (n, 3, 2)) * w0[..., None]
+    end = rng.uniform(-spread, spread, (n, 3, 2)) * w1[..., None]
+    dp[..., :2] = end - p0[..., :2]
+    dp[..., 3] = w1 - w0
+    p0[..., 2] = rng.uniform(0, 1, (n, 3))
+    t_span = np.sort(rng.uniform(0, 1, (n, 2)), axis=1)
+    t_span[: n // 3] = (0.0, 1.0)
+    return p0, dp, t_span
+
+
+def shoelace(v):
+    x, y = v[:, 0], v[:, 1]
+    return 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)
+
+
+def test_hull_matches_scipy_convex_hull():
+    rng = np.random.default_rng(1)
+    n = 300
+    p0, dp, t_span = random_moving_table(rng, n)
+    hull = np.full((n, 6, 2), np.nan)
+    hull_n = np.zeros(n, np.int32)
+    ops = np.zeros(N_OPS, np.int64)
+    for tri in range(n):
+        hull_setup(p0, dp, t_span, tri, hull, hull_n, ops)
+    assert np.all(ops > 0)
+    sizes = set()
+    for tri in range(n):
+        pts = six_points(p0, dp, t_span, tri)
+        ref = ConvexHull(pts)
+        mine = hull[tri, : hull_n[tri]]
+        assert np.all(np.isnan(hull[tri, hull_n[tri]:]))
+        sizes.add(int(hull_n[tri]))
+        scale = np.abs(pts).max()
+        # every scipy vertex is one of ours; ours are input points on the scipy hull
+        for v in pts[ref.vertices]:
+            assert np.min(np.abs(mine - v).sum(1)) <= 1e-12 * scale
+        for v in mine:
+            assert np.min(np.abs(pts - v).sum(1)) <= 1e-12 * scale  # X * (1/W) vs X / W rounding
+            assert np.all(ref.equations[:, :2] @ v + ref.equations[:, 2] <= 1e-9 * scale)
+        area = shoelace(mine)
+        assert area > 0, "hull must be counter-clockwise (positive signed area)"
+        assert abs(area - ref.volume) <= 1e-9 * ref.volume
+        # strictly convex: every consecutive triple turns left
+        for i in range(len(mine)):
+            a, b, c = mine[i], mine[(i + 1) % len(mine)], mine[(i + 2) % len(mine)]
+            assert (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]) > 0
+    assert sizes >= {3, 4, 5}, sizes
+
+
+def test_hull_degenerate_inputs():
+    one = np.array([[[4.0, 8.0, 0.5, 2.0]] * 3])  # three identical vertices, no motion
+    p0, dp, span = one, np.zeros_like(one), np.array([[0.0, 1.0]])
+    hull, hull_n, _ = compute_hull(p0, dp, span)
+    assert hull_n[0] == 1 and np.array_equal(hull[0, 0], [2.0, 4.0])
+
+    # identical vertices moving: a segment
+    dp = np.zeros_like(one)
+    dp[0, :, 0] = 6.0  # x from 2 to 5
+    hull, hull_n, _ = compute_hull(p0, dp, span)
+    assert hull_n[0] == 2 and {tuple(v) for v in hull[0, :2]} == {(2.0, 4.0), (5.0, 4.0)}
+
+    # all six on a horizontal line y = 3, and on a diagonal x = y, W varying
+    for diag in (False, True):
+        p0 = np.zeros((1, 3, 4))
+        dp = np.zeros((1, 3, 4))
+        xs0, xs1, w0, w1 = [1.0, 5.0, 2.0], [7.0, -3.0, 4.0], [1.0, 2.0, 0.5], [0.5, 4.0, 1.0]
+        for k in range(3):
+            p0[0, k] = (xs0[k] * w0[k], (xs0[k] if diag else 3.0) * w0[k], 0.0, w0[k])
+            end = (xs1[k] * w1[k], (xs1[k] if diag else 3.0) * w1[k], 0.0, w1[k])
+            dp[0, k] = np.array(end) - p0[0, k]
+        hull, hull_n, _ = compute_hull(p0, dp, span)
+        assert hull_n[0] == 2
+        got = sorted(tuple(v) for v in hull[0, :2])
+        assert got == ([(-3.0, -3.0), (7.0, 7.0)] if diag else [(-3.0, 3.0), (7.0, 3.0)])
+        assert_conservative(p0, dp, span, seed=5)
+        # segment vs tiles: touching from above / below / at the end is accepted, a gap is not
+        y = (lambda x: x) if diag else (lambda x: 3.0)
+        assert overlaps(hull, hull_n, (0.0, 0.0, y(0.0), y(0.0) + 2))  # zero-width tile on the line
+        assert overlaps(hull, hull_n, (7.0, 9.0, y(7.0), y(7.0) + 2))  # corner at the end point
+        assert not overlaps(hull, hull_n, (7.001, 9.0, y(7.0) - 1, y(7.0) + 2))  # beyond the end
+        if diag:
+            assert overlaps(hull, hull_n, (0.0, 1.0, -1.0, 0.0))  # corner (0, 0) on the line
+            assert not overlaps(hull, hull_n, (0.001, 1.0, -1.0, 0.0))  # just off the line
+            assert not overlaps(hull, hull_n, (0.0, 1.0, -1.0, -0.001))
+        else:
+            assert not overlaps(hull, hull_n, (0.0, 1.0, 3.001, 5.0))
+            assert not overlaps(hull, hull_n, (0.0, 1.0, 1.0, 2.999))
+
+
+# ---------------------------------------------------------------- 2. conservativeness
+
+
+def setup_table(q, r, lx, ly):
+    d = draw_from_clip(q, r, lx, ly, width=W, height=H)
+    setup = TriangleSetup(load_arch().triangle_setup, d, 8)
+    alive, _, _ = setup.run(np.arange(d.n, dtype=np.int64))
+    return setup.table, alive
+
+
+@given(moving_triangle(lens=False, allow_w_cross=False), st.integers(0, 2**31))
+def test_hull_conservative_setup_triangles(tri, seed):
+    table, alive = setup_table(*tri)
+    assume(0 in alive and table.flags[0] & FLAG_WPOS)
+    assert_conservative(table.p0, table.dp, table.t_span, seed)
+
+
+@st.composite
+def pixel_triangle(draw):
+    """p0, dp, t_span with W in [0.2, 4]; adversarial kinds: zero motion,
+    translation, collinear (horizontal, diagonal), identical vertices."""
+    kind = draw(st.sampled_from(["general", "zero", "translate", "hline", "diag", "point", "pointmove"]))
+    span = sorted([draw(finite(0, 1)), draw(finite(0, 1))])
+    if draw(st.booleans()):
+        span = [0.0, 1.0]
+    p0 = np.zeros((1, 3, 4))
+    dp = np.zeros((1, 3, 4))
+    c = draw(finite(-20, 60))
+    pos = []
+    for s in range(2):
+        for k in range(3):
+            w = draw(finite(0.2, 4.0))
+            x = draw(finite(-20.0, 70.0))
+            y = draw(finite(-20.0, 50.0))
+            if kind == "hline":
+                y = c
+            elif kind == "diag":
+                y = x
+            elif kind in ("point", "pointmove") and k > 0:
+                x, y = pos[-1][0] / pos[-1][2], pos[-1][1] / pos[-1][2]
+            pos.append((x * w, y * w, w))
+    pos = np.array(pos).reshape(2, 3, 3)
+    if kind in ("zero", "point"):
+        pos[1] = pos[0]
+    if kind == "translate":
+        pos[1] = pos[0]
+        pos[1, :, 0] += draw(finite(-30, 30)) * pos[1, :, 2]
+        pos[1, :, 1] += draw(finite(-30, 30)) * pos[1, :, 2]
+    for i, c in enumerate((0, 1, 3)):
+        p0[0, :, c] = pos[0, :, i]
+        dp[0, :, c] = pos[1, :, i] - pos[0, :, i]
+    return p0, dp, np.array([span])
+
+
+@given(pixel_triangle(), st.integers(0, 2**31))
+def test_hull_conservative_direct(case, seed):
+    assert_conservative(*case, seed)
+
+
+def test_hull_conservative_seeded_with_hits():
+    """Deterministic sweep; checks that the brute force does find covered tiles."""
+    rng = np.random.default_rng(7)
+    p0, dp, t_span = random_moving_table(rng, 25, spread=20.0)
+    hits = 0
+    for tri in range(len(p0)):
+        assert_conservative(p0, dp, t_span, seed=tri, tri=tri, n_random=4)
+        hull, hull_n, _ = compute_hull(p0, dp, t_span, tri)
+        for tile in random_tiles(p0, dp, t_span, hull, hull_n, rng, 8, tri):
+            if covered_points(p0, dp, t_span, tri, tile, rng, limit=1):
+                hits += 1
+                assert overlaps(hull, hull_n, tile, tri)
+    assert hits > 40
+
+
+# ---------------------------------------------------------------- 3. tightness
+
+
+def test_hull_tighter_than_bbox_for_diagonal_motion():
+    # a small triangle moving from the top-left to the bottom-right, W varying
+    a = np.array([[0.0, 0.0], [4.0, 0.0], [0.0, 4.0]])
+    b = a + 40.0
+    w0 = np.array([1.0, 2.0, 0.5])
+    w1 = np.array([2.0, 1.0, 4.0])
+    p0 = np.zeros((1, 3, 4))
+    dp = np.zeros((1, 3, 4))
+    p0[0, :, :2] = a * w0[:, None]
+    p0[0, :, 3] = w0
+    dp[0, :, :2] = b * w1[:, None] - p0[0, :, :2]
+    dp[0, :, 3] = w1 - w0
+    span = np.array([[0.0, 1.0]])
+    hull, hull_n, _ = compute_hull(p0, dp, span)
+    assert hull_n[0] == 5  # (0,0) (4,0) (44,40) (40,44) (0,4); (40,40) is inside
+    pts = six_points(p0, dp, span)
+    lo, hi = pts.min(0), pts.max(0)
+    corner = (lo[0], lo[0] + 8, hi[1] - 8, hi[1])  # bottom-left corner of the bbox
+    bbox_accepts = corner[0] <= hi[0] and corner[1] >= lo[0] and corner[2] <= hi[1] and corner[3] >= lo[1]
+    assert bbox_accepts and not overlaps(hull, hull_n, corner)
+    assert not overlaps(hull, hull_n, (hi[0] - 8, hi[0], lo[1], lo[1] + 8))  # top-right corner
+    assert not covered_points(p0, dp, span, 0, corner, np.random.default_rng(0))
+    # the rejected fraction of a tile grid over the bbox is substantial
+    rejected = total = 0
+    for x in np.arange(lo[0], hi[0], 4.0):
+        for y in np.arange(lo[1], hi[1], 4.0):
+            total += 1
+            rejected += not overlaps(hull, hull_n, (x, x + 4, y, y + 4))
+    assert rejected > 0.3 * total
+    # a tile well inside the hull: all four corners inside (scipy's equations), accepted
+    ref = ConvexHull(pts)
+    inner = (20.0, 22.0, 20.0, 22.0)
+    for cx in inner[:2]:
+        for cy in inner[2:]:
+            assert np.all(ref.equations[:, :2] @ (cx, cy) + ref.equations[:, 2] < -1.0)
+    assert overlaps(hull, hull_n, inner)
+    # and one touching that tile and enclosing the whole hull
+    assert overlaps(hull, hull_n, (lo[0] - 1, hi[0] + 1, lo[1] - 1, hi[1] + 1))
+
+
+def test_margin_is_small_but_positive():
+    # unit square hull (zero motion of a right triangle + its mirror is not
+    # possible; use a moving right triangle whose hull is a square)
+    p0 = np.array([[[0.0, 0.0, 0.0, 1.0], [1.0, 0.0, 0.0, 1.0], [0.0, 1.0, 0.0, 1.0]]])
+    dp = np.zeros_like(p0)
+    dp[0, 0, :2] = (1.0, 1.0)  # vertex 0 moves to (1, 1)
+    span = np.array([[0.0, 1.0]])
+    hull, hull_n, _ = compute_hull(p0, dp, span)
+    assert hull_n[0] == 4
+    for tile in [(1.0, 2.0, 0.2, 0.4), (-1.0, 0.0, 0.2, 0.4), (0.2, 0.4, 1.0, 2.0), (0.2, 0.4, -1.0, 0.0),
+                 (1.0 + 5e-8, 2.0, 0.2, 0.4)]:
+        assert overlaps(hull, hull_n, tile)
+    for tile in [(1.0 + 1e-6, 2.0, 0.2, 0.4), (0.2, 0.4, -1.0, -1e-6)]:
+        assert not overlaps(hull, hull_n, tile)
+    # diagonal hull edge (zero motion triangle): touching and just off the hypotenuse
+    p0 = np.array([[[0.0, 0.0, 0.0, 1.0], [8.0, 0.0, 0.0, 1.0], [0.0, 8.0, 0.0, 1.0]]])
+    hull, hull_n, _ = compute_hull(p0, np.zeros_like(p0), span)
+    assert hull_n[0] == 3
+    assert overlaps(hull, hull_n, (4.0, 6.0, 4.0, 6.0))
+    assert not overlaps(hull, hull_n, (4.0 + 1e-5, 6.0, 4.0, 6.0))
+
+
+# ---------------------------------------------------------------- 4. pure Python path
+
+_NOJIT_SCRIPT = r"""
+import json, sys
+import numpy as np
+from units.tile_test_hull import hull_overlaps_tile, hull_setup
+assert not hasattr(hull_setup, "py_func"), "numba JIT still active"
+data = json.loads(sys.stdin.read())
+p0, dp, span = (np.array(data[k]) for k in ("p0", "dp", "span"))
+n = len(p0)
+hull = np.zeros((n, 6, 2)); hull_n = np.zeros(n, np.int32); ops = np.zeros(5, np.int64)
+res = []
+for tri in range(n):
+    hull_setup(p0, dp, span, tri, hull, hull_n, ops)
+    res.append([bool(hull_overlaps_tile(hull, hull_n, tri, *tile, ops)) for tile in data["tiles"]])
+print(json.dumps({"hull": hull.tolist(), "hull_n": hull_n.tolist(), "ops": ops.tolist(), "res": res}))
+"""
+
+
+def test_pure_python_path_matches_jit():
+    rng = np.random.default_rng(3)
+    p0, dp, span = random_moving_table(rng, 6, spread=10.0)
+    # add a collinear and a single-point case
+    p0 = np.concatenate([p0, np.array([[[1.0, 3.0, 0.0, 1.0], [2.0, 3.0, 0.0, 1.0], [5.0, 3.0, 0.0, 1.0]],
+                                       [[2.0, 2.0, 0.0, 1.0]] * 3])])
+    dp = np.concatenate([dp, np.zeros((2, 3, 4))])
+    span = np.concatenate([span, [[0.0, 1.0], [0.0, 1.0]]])
+    tiles = [tuple(map(float, (x, x + w, y, y + w))) for x, y, w in rng.uniform([-12, -12, 0], [12, 12, 8], (40, 3))]
+    tiles += [(2.0, 3.0, 2.0, 3.0), (5.0, 6.0, 3.0, 4.0), (5.5, 6.0, 3.0, 4.0)]
+    payload = json.dumps({"p0": p0.tolist(), "dp": dp.tolist(), "span": span.tolist(), "tiles": tiles})
+    env = dict(os.environ, NUMBA_DISABLE_JIT="1", PYTHONPATH=str(ROOT))
+    out = subprocess.run([sys.executable, "-c", _NOJIT_SCRIPT], input=payload, capture_output=True, text=True,
+                         env=env, cwd=ROOT, timeout=120)
+    assert out.returncode == 0, out.stderr
+    py = json.loads(out.stdout)
+    n = len(p0)
+    hull = np.zeros((n, 6, 2))
+    hull_n = np.zeros(n, np.int32)
+    ops = np.zeros(N_OPS, np.int64)
+    res = []
+    for tri in range(n):
+        hull_setup(p0, dp, span, tri, hull, hull_n, ops)
+        res.append([bool(hull_overlaps_tile(hull, hull_n, tri, *tile, ops)) for tile in tiles])
+    assert py["hull_n"] == hull_n.tolist()
+    assert np.array_equal(np.array(py["hull"]), hull)
+    assert py["ops"] == ops.tolist()
+    assert py["res"] == res
+    assert hull_n[-2] == 2 and hull_n[-1] == 1
+    assert any(any(r) for r in res) and not all(all(r) for r in res)
