@@ -106,10 +106,9 @@ def _ratio_check(a: float, b: float, target: float) -> tuple[str, bool]:
 def _linear_vs_quadratic(t: pd.DataFrame) -> tuple[str, bool]:
     lin, quad = t.loc["box+edge"], t.loc["box+quadratic"]
     more_tests = lin.samples_tested / max(quad.samples_tested, 1) - 1.0
-    ops_lin = lin.ops_tile_test + lin.ops_sample_test
-    ops_quad = quad.ops_tile_test + quad.ops_sample_test
-    less_ops = 1.0 - ops_lin / max(ops_quad, 1)
-    return (f"{100 * more_tests:+.1f}% tests, {-100 * less_ops:+.1f}% tile+sample arithmetic",
+    # 002 compares the total arithmetic of the four stages of its Fig. 15
+    less_ops = 1.0 - lin.ops_total / max(quad.ops_total, 1)
+    return (f"{100 * more_tests:+.1f}% tests, {-100 * less_ops:+.1f}% total arithmetic",
             bool(more_tests <= 0.10 and less_ops > 0))
 
 

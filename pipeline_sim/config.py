@@ -88,7 +88,7 @@ class TriangleSetupConfig(UnitTiming):
 class TileTraverserConfig(UnitTiming):
     throughput: float = 2.0
     latency: int = 4
-    tile_size: int = 8
+    tile_size: int = 4
     coarse_factor: int = 4
 
     def validate(self, where: str) -> None:

@@ -64,7 +64,7 @@ def test_run_writes_every_output(small_scene, tmp_path, capsys):
     for key in ("arch", "scene_digest", "versions", "seed", "wall_time_s", "frame_cycles", "dimensions"):
         assert key in info
     assert info["dimensions"] == {"motion": True, "lens": True}
-    assert info["arch"]["tile_traverser"]["tile_size"] == 8
+    assert info["arch"]["tile_traverser"]["tile_size"] == 4
     text = capsys.readouterr().out
     assert "STE" in text and "frame cycles" in text and "numba kernels ready" in text
     # the html report is self-contained
@@ -74,11 +74,11 @@ def test_run_writes_every_output(small_scene, tmp_path, capsys):
 
 def test_options_override_scene_and_arch(small_scene, tmp_path):
     out = tmp_path / "o"
-    assert main(["run", str(small_scene), "--out", str(out), "--spp", "8", "--tile", "4", "--seed", "9",
+    assert main(["run", str(small_scene), "--out", str(out), "--spp", "8", "--tile", "8", "--seed", "9",
                  "--set", "shading.cache_entries=64", "--quiet"]) == 0
     info = json.loads((out / "run.json").read_text())
     assert info["image"]["spp"] == 8 and info["seed"] == 9
-    assert info["arch"]["tile_traverser"]["tile_size"] == 4
+    assert info["arch"]["tile_traverser"]["tile_size"] == 8
     assert info["arch"]["shading"]["cache_entries"] == 64
 
 

@@ -236,9 +236,9 @@ def test_sweep_report_selection_and_representative(sweep_dir):
     for pid in ids:
         spp = ok.loc[pid, "image.spp"]
         assert ok.loc[pid, "flip"] == ok[ok["image.spp"] == spp]["flip"].min()
-    # the default tile size (8) is in the arch: the representative point has it
+    # the default tile size (4) is in the arch: the representative point has it
     pid, why = representative_point(sw, "frame_cycles")
-    assert ok.loc[pid, "tile_traverser.tile_size"] == 8 and "default" in why
+    assert ok.loc[pid, "tile_traverser.tile_size"] == 4 and "default" in why
 
 
 def test_not_a_sweep_folder(tmp_path, sweep_dir):
@@ -397,9 +397,9 @@ def test_sweep_report_reads_the_nested_layout(sweep_dir, tmp_path):
     (d / "sweep.json").write_text(json.dumps(nested))
     sw = load_sweep(d)
     assert sw.spec["scene"] == flat["scene"] and sw.spec["fixed_set"] == flat["fixed_set"]
-    assert sw.spec["arch"]["tile_traverser"]["tile_size"] == 8  # the default, loaded
+    assert sw.spec["arch"]["tile_traverser"]["tile_size"] == 4  # the default, loaded
     pid, _ = representative_point(sw, "frame_cycles")
-    assert sw.ok.set_index("point_id").loc[pid, "tile_traverser.tile_size"] == 8
+    assert sw.ok.set_index("point_id").loc[pid, "tile_traverser.tile_size"] == 4
     (tmp_path / "r").mkdir()
     (tmp_path / "r" / "sweep.html").write_text("old")
     out = build_report(d, tmp_path / "r" / "sweep.html", metric="psnr", cost="ops_total")

@@ -48,8 +48,12 @@ EVENTS = ("rejected_box", "rejected_edge", "rejected_lens", "accepted", "rejecte
 def box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ta, tb, ops):
     """Moving 2DH box of the triangle against the tile frustum planes (002 eq. 1-2).
 
-    Returns the sub-interval of [ta, tb] where the box may overlap the tile
-    [x0, x1] x [y0, y1] (pixel units, already widened); empty when lo > hi.
+    The box is taken at the ends of [ta, tb] and moves linearly between them:
+    the vertices (and the lens shifts) are linear in t, so at any t in
+    [ta, tb] they lie in the interpolated box, and the narrower [ta, tb] is,
+    the tighter the box. Returns the sub-interval of [ta, tb] where the box
+    may overlap the tile [x0, x1] x [y0, y1] (pixel units, already widened);
+    empty when lo > hi.
     """
     xmn = np.empty(2)
     xmx = np.empty(2)
@@ -58,6 +62,7 @@ def box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ta, tb, ops):
     wmn = np.empty(2)
     wmx = np.empty(2)
     for s in range(2):
+        t = ta if s == 0 else tb
         xmn[s] = np.inf
         xmx[s] = -np.inf
         ymn[s] = np.inf
@@ -65,20 +70,22 @@ def box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ta, tb, ops):
         wmn[s] = np.inf
         wmx[s] = -np.inf
         for k in range(3):
-            X = p0[tri, k, 0] + s * dp[tri, k, 0]
-            Y = p0[tri, k, 1] + s * dp[tri, k, 1]
-            W = p0[tri, k, 3] + s * dp[tri, k, 3]
-            LX = abs(l0[tri, k, 0] + s * dl[tri, k, 0])
-            LY = abs(l0[tri, k, 1] + s * dl[tri, k, 1])
+            X = p0[tri, k, 0] + t * dp[tri, k, 0]
+            Y = p0[tri, k, 1] + t * dp[tri, k, 1]
+            W = p0[tri, k, 3] + t * dp[tri, k, 3]
+            LX = abs(l0[tri, k, 0] + t * dl[tri, k, 0])
+            LY = abs(l0[tri, k, 1] + t * dl[tri, k, 1])
             xmn[s] = min(xmn[s], X - LX)
             xmx[s] = max(xmx[s], X + LX)
             ymn[s] = min(ymn[s], Y - LY)
             ymx[s] = max(ymx[s], Y + LY)
             wmn[s] = min(wmn[s], W)
             wmx[s] = max(wmx[s], W)
+    ops[OP_MADD] += 30
     ops[OP_CMP] += 36
     lo = ta
     hi = tb
+    span = tb - ta
     for plane in range(4):
         d = np.empty(2)
         for s in range(2):
@@ -104,22 +111,25 @@ def box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ta, tb, ops):
         if d[0] > 0.0 and d[1] > 0.0:
             return 1.0, 0.0
         if d[0] > 0.0:
-            t = d[0] / (d[0] - d[1])
+            t = ta + span * (d[0] / (d[0] - d[1]))
             lo = max(lo, t)
             ops[OP_RCP] += 1
             ops[OP_MUL] += 1
+            ops[OP_MADD] += 1
         elif d[1] > 0.0:
-            t = d[0] / (d[0] - d[1])
+            t = ta + span * (d[0] / (d[0] - d[1]))
             hi = min(hi, t)
             ops[OP_RCP] += 1
             ops[OP_MUL] += 1
+            ops[OP_MADD] += 1
         if lo > hi:
             return lo, hi
     return lo, hi
 
 
 @nb.njit(cache=True)
-def _edge_time_interval(edge_h, edge_gamma, edge_g, edge_fg, gamma_per_tile, tri, x0, x1, y0, y1, lo, hi, ops):
+def _edge_time_interval(edge_h, edge_gamma, edge_g, edge_fg, edge_abs, gamma_per_tile, tri, x0, x1, y0, y1, lo, hi,
+                        ops):
     """Linearized moving-edge test (002 eq. 8-9); narrows [lo, hi].
 
     Gamma is the triangle's (eq. 7 over its bounds) or, with
@@ -133,17 +143,17 @@ def _edge_time_interval(edge_h, edge_gamma, edge_g, edge_fg, gamma_per_tile, tri
         sx = x1 if hx > 0 else x0
         sy = y1 if hy > 0 else y0
         o = hx * sx + hy * sy + hw
-        o += F32_REL * (abs(hx * sx) + abs(hy * sy) + abs(hw))
+        # float32 vertices move e by up to ~2^-23 of the products behind f, g, h
+        mag = edge_abs[tri, k, 0] * max(abs(x0), abs(x1)) + edge_abs[tri, k, 1] * max(abs(y0), abs(y1)) + edge_abs[tri, k, 2]
+        o += F32_REL * mag
         gam = edge_gamma[tri, k]
         if gamma_per_tile:
             gt = -np.inf
-            mag = 0.0
             for which in range(2):
                 ax = edge_g[tri, k, 0] if which == 0 else edge_fg[tri, k, 0]
                 ay = edge_g[tri, k, 1] if which == 0 else edge_fg[tri, k, 1]
                 aw = edge_g[tri, k, 2] if which == 0 else edge_fg[tri, k, 2]
                 gt = max(gt, aw + (ax * x1 if ax > 0 else ax * x0) + (ay * y1 if ay > 0 else ay * y0))
-                mag = max(mag, abs(aw) + abs(ax) * max(abs(x0), abs(x1)) + abs(ay) * max(abs(y0), abs(y1)))
             gam = min(gam, gt + F32_REL * mag)  # both bound the slope: keep the tighter
             ops[OP_MADD] += 4
             ops[OP_CMP] += 6
@@ -283,7 +293,8 @@ LINE_F32_REL = 4.0 * 2.0**-23
 @nb.njit(cache=True)
 def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, algorithm, edge_test, quadratic,
                      gamma_per_tile, lens_bounds, clips,
-                     p0, dp, l0, dl, t_span, flags, edge_f, edge_h, edge_gamma, edge_g, edge_fg, plane_n, plane_d,
+                     p0, dp, l0, dl, t_span, flags, edge_f, edge_h, edge_gamma, edge_g, edge_fg, edge_abs, plane_n,
+                     plane_d,
                      hull, hull_n, tuples, depth_c1, depth_c0,
                      out_keep, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, lines, mask, ops, events):
     """Test each (triangle, tile) record; fill its intervals and ``out_keep``.
@@ -317,13 +328,20 @@ def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, algorith
                 continue
             if edge_test and (fl & FLAG_EDGE) != 0:
                 if quadratic:
-                    lo, hi = quadratic_time_interval(edge_f, edge_g, edge_h, tri, x0, x1, y0, y1, lo, hi, ops)
+                    lo, hi = quadratic_time_interval(edge_f, edge_g, edge_h, edge_abs, tri, x0, x1, y0, y1, lo, hi,
+                                                     ops)
                 else:
-                    lo, hi = _edge_time_interval(edge_h, edge_gamma, edge_g, edge_fg, gamma_per_tile, tri,
+                    lo, hi = _edge_time_interval(edge_h, edge_gamma, edge_g, edge_fg, edge_abs, gamma_per_tile, tri,
                                                  x0, x1, y0, y1, lo, hi, ops)
                 if lo > hi:
                     events[EV_REJ_EDGE] += 1
                     continue
+                # the box taken over the narrowed [lo, hi] is tighter (002 §4.1 applied again)
+                if lo > ta or hi < tb:
+                    lo, hi = box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, lo, hi, ops)
+                    if lo > hi:
+                        events[EV_REJ_BOX] += 1
+                        continue
         elif algorithm == ALG_HULL:
             if wpos and not has_lens and hull_n[tri] > 0:
                 # the sample tester's float32 vertices move the true hull by ~F32_REL of its coordinates
@@ -459,7 +477,7 @@ class TileTest:
                          self.algorithm, cfg.edge_test, cfg.edge_solver == "quadratic", cfg.gamma == "tile",
                          cfg.lens_bounds, cfg.clips,
                          t.p0, t.dp, t.l0, t.dl, t.t_span, t.flags, t.edge_f, t.edge_h, t.edge_gamma, t.edge_g,
-                         t.edge_fg, t.plane_n, t.plane_d, t.hull, t.hull_n, self.tuples, self.depth_c1,
+                         t.edge_fg, t.edge_abs, t.plane_n, t.plane_d, t.hull, t.hull_n, self.tuples, self.depth_c1,
                          self.depth_c0, keep,
                          iv["t_lo"], iv["t_hi"], iv["u_lo"], iv["u_hi"], iv["v_lo"], iv["v_hi"],
                          iv["z_lo"], iv["z_hi"], lines if len(lines) else np.empty((n, 8)),

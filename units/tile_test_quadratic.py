@@ -18,8 +18,8 @@ start and latest end) is intersected with [lo, hi] and the other edges'.
 
 Numerics (everything may only widen the interval, never narrow it):
 
-* each q_c gets the margin M = F32_REL * ((|f| + |g| + |h|) . (max|x|,
-  max|y|, 1)) of the linearized test, so the interval is conservative against
+* each q_c gets the margin M = F32_REL * (A . (max|x|, max|y|, 1)) of the
+  linearized test, A = max(|f| + |g| + |h|, edge_abs) per component, so the interval is conservative against
   the float32 vertices of the sample tester; M is the largest over the tile,
   so the single-corner shortcut stays valid, and it also absorbs the small
   tolerance with which a component's sign is called constant;
@@ -183,7 +183,7 @@ def _nonneg_hull(A, B, C, lo, hi, ops):
 
 
 @nb.njit(cache=True)
-def quadratic_time_interval(edge_f, edge_g, edge_h, tri, x0, x1, y0, y1, lo, hi, ops):
+def quadratic_time_interval(edge_f, edge_g, edge_h, edge_abs, tri, x0, x1, y0, y1, lo, hi, ops):
     """Narrow [lo, hi] to the times at which all three moving edges of ``tri``
     can admit a point of the tile [x0, x1] x [y0, y1].
 
@@ -191,7 +191,9 @@ def quadratic_time_interval(edge_f, edge_g, edge_h, tri, x0, x1, y0, y1, lo, hi,
     the edge equations n_k(t) = f t^2 + g t + h (004 §4.1, eq. 3-5) are
     solved exactly per tile, the time intervals taken from their roots.
     ``edge_f``, ``edge_g``, ``edge_h`` are the facing-normalized (N,3,3)
-    coefficients (components x, y, 1). Returns (lo, hi), empty when lo > hi;
+    coefficients (components x, y, 1); ``edge_abs`` bounds per component the
+    magnitude of the products behind them (see ``TriangleTable``), which sets
+    the float32 margin. Returns (lo, hi), empty when lo > hi;
     conservative: every t in [lo, hi] at which some point of the tile is on
     the inner side of all three edges (up to float32 vertex rounding) is kept.
     Non-finite input returns [lo, hi] unchanged.
@@ -223,9 +225,9 @@ def quadratic_time_interval(edge_f, edge_g, edge_h, tri, x0, x1, y0, y1, lo, hi,
         hx = edge_h[tri, k, 0]
         hy = edge_h[tri, k, 1]
         hw = edge_h[tri, k, 2]
-        sx = abs(fx) + abs(gx) + abs(hx)
-        sy = abs(fy) + abs(gy) + abs(hy)
-        sw = abs(fw) + abs(gw) + abs(hw)
+        sx = max(abs(fx) + abs(gx) + abs(hx), edge_abs[tri, k, 0])
+        sy = max(abs(fy) + abs(gy) + abs(hy), edge_abs[tri, k, 1])
+        sw = max(abs(fw) + abs(gw) + abs(hw), edge_abs[tri, k, 2])
         # float32 margin, the largest over the tile (valid for every corner)
         marg = F32_REL * (sx * ax + sy * ay + sw)
         ops[OP_ADD] += 6

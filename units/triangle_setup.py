@@ -29,6 +29,7 @@ import numba as nb
 import numpy as np
 
 from pipeline_sim.counters import N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+from units.rounding import F32_REL
 from units.tile_test_hull import hull_setup
 
 EVENTS = (
@@ -75,6 +76,10 @@ class TriangleTable:
     edge_gamma: np.ndarray  # (N,3) upper slope bound Gamma per edge
     edge_g: np.ndarray  # (N,3,3) facing-normalized g of each edge (for Gamma per tile)
     edge_fg: np.ndarray  # (N,3,3) facing-normalized f + g of each edge
+    # (N,3,3) per component, the sum of the absolute products that make up f, g
+    # and h: it bounds how far the float32 rounding of the vertices can move
+    # the edge function, even where f, g or h itself has cancelled
+    edge_abs: np.ndarray
     ref: np.ndarray  # (N,3,3) float32 reference-camera (t=0.5, lens centre) X, Y, W
     edge_eps: np.ndarray  # (N,) float32 error bound of a float32 edge-function value
     plane_n: np.ndarray  # (N,2,3) normals of the triangle's plane at t=0 and t=1 (X, Y, W space)
@@ -93,7 +98,7 @@ class TriangleTable:
             t_span=np.zeros((n, 2), f64), bounds=np.zeros((n, 4), np.int32),
             facing=np.zeros(n, np.int8), flags=np.zeros(n, np.int8),
             edge_f=np.zeros((n, 3, 3), f64), edge_h=np.zeros((n, 3, 3), f64), edge_gamma=np.zeros((n, 3), f64),
-            edge_g=np.zeros((n, 3, 3), f64), edge_fg=np.zeros((n, 3, 3), f64),
+            edge_g=np.zeros((n, 3, 3), f64), edge_fg=np.zeros((n, 3, 3), f64), edge_abs=np.zeros((n, 3, 3), f64),
             ref=np.zeros((n, 3, 3), f32), edge_eps=np.zeros(n, f32),
             plane_n=np.zeros((n, 2, 3), f64), plane_d=np.zeros((n, 2, 2, 2), f64),
             hull=np.zeros((n, 6, 2), f64), hull_n=np.zeros(n, np.int32),
@@ -129,7 +134,7 @@ def _det(x0, y0, w0, x1, y1, w1, x2, y2, w2):
 @nb.njit(cache=True)
 def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_culling,
                  p0, dp, l0, dl, p0_32, dp_32, l0_32, dl_32, t_span, bounds, facing, flags,
-                 edge_f, edge_h, edge_gamma, edge_g, edge_fg, ref, edge_eps, plane_n, plane_d, depth_planes, status, ops, events):
+                 edge_f, edge_h, edge_gamma, edge_g, edge_fg, edge_abs, ref, edge_eps, plane_n, plane_d, depth_planes, status, ops, events):
     """Triangle setup for the triangles ``ids`` (PIPELINE §2.1; 002 §3-4, 004 eq. 3-5).
 
     Writes the per-triangle tables in place, ``status`` per batch item and
@@ -397,9 +402,25 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
                     aw = sgn * (gv[2] + (fv[2] if pass_ == 1 else 0.0))
                     m = aw + (ax * sx1 if ax > 0 else ax * sx0) + (ay * sy1 if ay > 0 else ay * sy0)
                     gam = max(gam, m)
-                # widen by the rounding of the terms so the bound stays conservative
-                mag = (abs(gv[0]) + abs(fv[0])) * max(abs(sx0), abs(sx1)) + (abs(gv[1]) + abs(fv[1])) * max(abs(sy0), abs(sy1)) + abs(gv[2]) + abs(fv[2])
-                edge_gamma[tri, k] = gam + 1e-6 * mag
+                # the magnitudes of the products behind h, g and f: float32 vertices move
+                # the edge function by up to ~2^-23 of these, however much f, g, h cancel
+                ab = np.empty(3)
+                _abs_cross3(qj[0], qj[1], qj[3], qi[0], qi[1], qi[3], ab)
+                for c in range(3):
+                    edge_abs[tri, k, c] = ab[c]
+                _abs_cross3(qj[0], qj[1], qj[3], di[0], di[1], di[3], ab)
+                for c in range(3):
+                    edge_abs[tri, k, c] += ab[c]
+                _abs_cross3(dj[0], dj[1], dj[3], qi[0], qi[1], qi[3], ab)
+                for c in range(3):
+                    edge_abs[tri, k, c] += ab[c]
+                _abs_cross3(dj[0], dj[1], dj[3], di[0], di[1], di[3], ab)
+                for c in range(3):
+                    edge_abs[tri, k, c] += ab[c]
+                # widen by that rounding so the bound stays conservative
+                mag = (edge_abs[tri, k, 0] * max(abs(sx0), abs(sx1)) + edge_abs[tri, k, 1] * max(abs(sy0), abs(sy1))
+                       + edge_abs[tri, k, 2])
+                edge_gamma[tri, k] = gam + F32_REL * mag
                 for c in range(3):
                     edge_f[tri, k, c] = sgn * fv[c]
                     edge_h[tri, k, c] = sgn * hv[c]
@@ -449,6 +470,14 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
 
 
 @nb.njit(cache=True, inline="always")
+def _abs_cross3(ax, ay, aw, bx, by, bw, out):
+    """Per component, the sum of the absolute products of a x b (a bound on its rounding)."""
+    out[0] = abs(ay * bw) + abs(aw * by)
+    out[1] = abs(aw * bx) + abs(ax * bw)
+    out[2] = abs(ax * by) + abs(ay * bx)
+
+
+@nb.njit(cache=True, inline="always")
 def _cross3(ax, ay, aw, bx, by, bw, out):
     out[0] = ay * bw - aw * by
     out[1] = aw * bx - ax * bw
@@ -477,7 +506,7 @@ class TriangleSetup:
         setup_kernel(ids, d.q, d.r, d.lens_x, d.lens_y, d.width, d.height, self.tile_size,
                      self.config.backface_culling, t.p0, t.dp, t.l0, t.dl, t.p0_32, t.dp_32,
                      t.l0_32, t.dl_32, t.t_span, t.bounds, t.facing, t.flags, t.edge_f, t.edge_h,
-                     t.edge_gamma, t.edge_g, t.edge_fg, t.ref, t.edge_eps, t.plane_n, t.plane_d, self.draw.depth_w is not None,
+                     t.edge_gamma, t.edge_g, t.edge_fg, t.edge_abs, t.ref, t.edge_eps, t.plane_n, t.plane_d, self.draw.depth_w is not None,
                      status, ops, events)
         self.last_status = status
         kept = ids[status == ST_OK]

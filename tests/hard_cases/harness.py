@@ -22,7 +22,9 @@ them). The checks below are what §8 asks of every hard case:
   cache) and with the counting architecture, and z-cull off changes nothing;
 * ``assert_tiles_conservative``: the unit-level check of ``test_tile_test``
   (random samples the exact test accepts lie in the bounds, the time span
-  and a kept tile whose (t^, u^, v^, z^) contain them), for each triangle;
+  and a kept tile whose (t^, u^, v^, z^) and two-stage time lines contain
+  them), for each triangle and every tile-test algorithm (``TILE_ALGORITHMS``);
+  ``check_exact`` also runs every algorithm end to end (``VARIANTS``);
 * ``check_conservative_mode``: the same promise for conservative mode (1x1
   tiles, one interval-shader run per pixel);
 * ``assert_continuous``: a 1e-6 relative perturbation of every input
@@ -234,8 +236,25 @@ def assert_bbox_matches_hierarchical(draw, *, spp=8, seed=0, backface=False, wha
     return default
 
 
+TILE_ALGORITHMS = (("hierarchical", "linearized"), ("hierarchical", "quadratic"), ("hull", "linearized"),
+                   ("dual_space", "linearized"), ("two_stage", "linearized"))
+
+
 def assert_tiles_conservative(q, r, lx, ly, *, seed=0, n=200, width=W, height=H, tile_size=8, coarse_factor=2,
                               depth_w=None, what="", ztol=1e-4, min_points=0):
+    """``assert_tiles_conservative_with`` for every tile-test algorithm and edge solver."""
+    total = 0
+    for algorithm, solver in TILE_ALGORITHMS:
+        total = assert_tiles_conservative_with(q, r, lx, ly, seed=seed, n=n, width=width, height=height,
+                                               tile_size=tile_size, coarse_factor=coarse_factor, depth_w=depth_w,
+                                               what=f"{what} [{algorithm}, {solver}]", ztol=ztol,
+                                               min_points=min_points, algorithm=algorithm, edge_solver=solver)
+    return total
+
+
+def assert_tiles_conservative_with(q, r, lx, ly, *, seed=0, n=200, width=W, height=H, tile_size=8, coarse_factor=2,
+                                   depth_w=None, what="", ztol=1e-4, min_points=0, algorithm="hierarchical",
+                                   edge_solver="linearized"):
     """Unit level (setup, traverser, tile test): every triangle of the case, random
     samples its exact test accepts lie in the bounds, the time span and a kept tile
     whose intervals contain them. Returns the number of samples checked."""
@@ -244,7 +263,7 @@ def assert_tiles_conservative(q, r, lx, ly, *, seed=0, n=200, width=W, height=H,
     for i in range(len(q)):
         qi, ri, lxi, lyi = q[i:i + 1], r[i:i + 1], lx[i:i + 1], ly[i:i + 1]
         setup, alive, kept = setup_and_tiles(qi, ri, lxi, lyi, width, height, tile_size, coarse_factor,
-                                             depth_w=depth_w)
+                                             depth_w=depth_w, algorithm=algorithm, edge_solver=edge_solver)
         assert_intervals_sane(kept, f"{what} triangle {i}")
         pts = sample_inside_points(setup, 0, rng, n, width, height)
         total += len(pts)
@@ -263,6 +282,11 @@ def assert_tiles_conservative(q, r, lx, ly, *, seed=0, n=200, width=W, height=H,
             assert kept["t_lo"][j] <= t <= kept["t_hi"][j], f"{what}: t^ excludes a covered sample"
             assert kept["u_lo"][j] <= u <= kept["u_hi"][j], f"{what}: u^ excludes a covered sample"
             assert kept["v_lo"][j] <= v <= kept["v_hi"][j], f"{what}: v^ excludes a covered sample"
+            if "lines" in kept:  # two-stage time lines, in float32 as the sample tester evaluates them
+                ln = kept["lines"][j]
+                t32, u32, v32 = np.float32(t), np.float32(u), np.float32(v)
+                assert ln[0] + ln[1] * u32 <= t32 <= ln[2] + ln[3] * u32, f"{what}: a time line in u excludes it"
+                assert ln[4] + ln[5] * v32 <= t32 <= ln[6] + ln[7] * v32, f"{what}: a time line in v excludes it"
             tol = ztol * (1 + abs(z))
             assert kept["z_lo"][j] - tol <= z <= kept["z_hi"][j] + tol, (
                 f"{what}: z^ [{kept['z_lo'][j]}, {kept['z_hi'][j]}] excludes a covered sample's depth {z}")
@@ -376,6 +400,13 @@ VARIANTS = [(), ("tile_traverser.coarse_factor=1",), ("tile_traverser.tile_size=
             ("tile_traverser.tile_size=16",)]
 if _has_key("tile_test", "gamma"):
     VARIANTS.append(("tile_test.gamma='tile'",))
+# every other culling algorithm, and the quadratic edge test per tile and per pixel
+INTERLEAVE = ("tile_test.algorithm='interleave_uvt'", "pipeline.sample_pattern='interleave'")
+VARIANTS += [("tile_test.algorithm='hull'",), ("tile_test.algorithm='dual_space'",),
+             ("tile_test.algorithm='two_stage'",), ("tile_test.algorithm='two_stage'", "tile_traverser.tile_size=1"),
+             ("tile_test.edge_solver='quadratic'",),
+             ("tile_test.edge_solver='quadratic'", "tile_traverser.tile_size=1", "tile_traverser.coarse_factor=8"),
+             INTERLEAVE]
 
 
 @dataclass
@@ -430,6 +461,7 @@ def check_exact(case, seeds=(0,), variants=VARIANTS):
     for seed in seeds:
         for ov in variants:
             res = assert_exact_coverage(draw, spp=case.spp, seed=seed, backface=case.backface, overrides=ov,
+                                        pattern="interleave" if ov == INTERLEAVE else "net",
                                         what=f"{case.name} {ov or ''} seed {seed}")
             covered = max(covered, int(counts_of(res).sum()))
     assert covered >= case.min_covered, f"{case.name}: covers only {covered} samples, the case is vacuous"

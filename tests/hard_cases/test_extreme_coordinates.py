@@ -123,23 +123,23 @@ FAR_EDGE_Q = tri((-S, -0.7 * S, 0, 1.0), (S, 0.7 * S, 0, 1.0), (-S, S, 0, 1.0))
 
 
 def test_far_vertex_edge_control_without_edge_test():
-    """Control for the xfail below: without the linearized edge test the pipeline
+    """Control for the test below: without the linearized edge test the pipeline
     covers exactly the samples the exact test accepts."""
     d = make_draw(FAR_EDGE_Q, FAR_EDGE_Q + [0.25, 0.25, 0, 0])
     assert_exact_coverage(d, spp=16, seed=0, overrides=("tile_test.edge_test=false",), what="far edge")
 
 
-@pytest.mark.xfail(reason="BUG: units/tile_test.py _edge_time_interval widens o = h . s by "
-                          "F32_REL * (|hx sx| + |hy sy| + |hw|), but h = p_j x p_i has cancelled (the edge passes "
-                          "near the screen) while the float32 vertices the sample tester uses are rounded by "
-                          "~2^-24 |p| = 1 px at 2.4e7 px, an error of order 2^-24 |p_i||p_j| in h: tile (5, 1) gets "
-                          "t^ = [0, 0.464] and loses the covered sample (40.05, 8.10, t = 0.571)", strict=True)
 def test_far_vertex_edge_through_screen():
     """An edge between two vertices a million NDC units away (2.4e7 px) crossing
     the screen diagonally, the triangle moving 6 px: float32 rounding of the far
-    vertices moves the edge by about half a pixel, more than the tile tests' margin."""
+    vertices moves the edge by about half a pixel, although h = p_j x p_i has
+    cancelled to a small value. The edge tests' margins come from the
+    magnitudes of the products behind h, g and f (``edge_abs``), not from h
+    itself (which let tile (5, 1) lose the sample (40.05, 8.10, t = 0.571)),
+    for the linearized and the quadratic edge test alike."""
     d = make_draw(FAR_EDGE_Q, FAR_EDGE_Q + [0.25, 0.25, 0, 0])
     assert_exact_coverage(d, spp=16, seed=0, what="far edge")
+    assert_exact_coverage(d, spp=16, seed=0, overrides=("tile_test.edge_solver='quadratic'",), what="far edge")
 
 
 @pytest.mark.parametrize("case", [c for c in CASES if len(c.q) == 1], ids=repr)
