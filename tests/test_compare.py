@@ -75,3 +75,15 @@ def test_unknown_algorithm_is_a_user_error(root):
     with pytest.raises(SystemExit) as exc:  # argparse choices
         main(["compare", str(root / "workloads/scenes/motion.toml"), "--algorithms", "bboxx"])
     assert exc.value.code == 2
+
+
+@pytest.mark.parametrize("name", ["defocus_1x", "motion_2x", "camera_motion_1x", "both_1x", "both_2x",
+                                  "tessellated"])
+def test_every_comparison_workload_gives_identical_images(root, name):
+    """Issue 4's check on every comparison workload (small frames): each culling
+    algorithm covers the samples BBOX covers; Interleave UVT those of BBOX on
+    its own discrete sample set."""
+    scene = load_scene(root / f"workloads/scenes/compare/{name}.toml")
+    scene = scene.replace(image=dataclasses.replace(scene.image, width=64, height=36, spp=4))
+    comp = compare(scene, load_arch(), [n for n in ALGORITHMS if n != "exact/pixel"])
+    assert comp.identical, f"{name}: {comp.differing} differ"
