@@ -4,8 +4,11 @@ The pipeline's functional results never depend on batching (every unit
 processes its batches in order), but the SimPy cost model sees batches: a unit
 is busy for a whole batch before the next stage can start on it, so large
 batches serialize the stages (pipeline fill and drain per batch) and small
-batches approach a record-by-record pipeline. On the default workload the
-section sweeps
+batches approach a record-by-record pipeline. The FIFOs between units are
+sized in records (``queue_depth`` batches of the default size) and a batch
+costs its exact fractional cycles, so the batch size changes only the
+granularity: the frame-cycle estimate converges as batches shrink. On the
+default workload the section sweeps
 
 * ``pipeline.tiles_per_batch`` together with ``pipeline.samples_per_batch``
   (samples = 64 x tiles), triangles per batch at the default;

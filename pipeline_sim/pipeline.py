@@ -17,7 +17,6 @@ image.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -32,11 +31,18 @@ END = None  # end-of-stream marker
 
 @dataclass
 class Channel:
-    """A bounded FIFO of batches between two stages, with occupancy statistics."""
+    """A bounded FIFO of batches between two stages, with occupancy statistics.
+
+    Bounded either in batches (``room`` is None: the store's capacity) or in
+    records (``room`` holds the free record slots; a batch takes as many as
+    it has records, at most the whole capacity), so that the batch size sets
+    the granularity of the timing without changing the size of the FIFO.
+    """
 
     name: str
     store: simpy.Store
     depth: int
+    room: simpy.Container | None = None
     _last: float = 0.0
     _level: int = 0
     integral: float = 0.0
@@ -74,11 +80,29 @@ class Stage:
             self.trace.append((start, end, state))
 
 
+def _records(batch: Any) -> int:
+    """Records in a batch: the length of a structure-of-arrays dict's arrays, or of an array."""
+    if isinstance(batch, dict):
+        return len(next(iter(batch.values()))) if batch else 0
+    return len(batch) if hasattr(batch, "__len__") else 1
+
+
+def _put(env: simpy.Environment, ch: Channel, ready: float, batch: Any):
+    """Put a batch, first waiting for room for its records when the channel counts records."""
+    n = 0
+    if ch.room is not None:
+        n = min(max(_records(batch), 1), int(ch.room.capacity))
+        yield ch.room.get(n)
+    yield ch.store.put((ready, batch, n))
+
+
 def _stage_process(env: simpy.Environment, stage: Stage, inp: Channel, out: Channel | None):
     while True:
         t0 = env.now
         item = yield inp.store.get()
         inp.record(env.now)
+        if item is not END and inp.room is not None:
+            yield inp.room.put(item[2])  # its record slots are free once taken
         if item is END:
             stage.starved += env.now - t0
             stage.mark(t0, env.now, "starved")
@@ -90,7 +114,7 @@ def _stage_process(env: simpy.Environment, stage: Stage, inp: Channel, out: Chan
                 stage.mark(t1, env.now, "blocked")
             stage.finished = env.now
             return
-        ready, payload = item
+        ready, payload, _ = item
         if ready > env.now:
             yield env.timeout(ready - env.now)
         stage.starved += env.now - t0
@@ -106,7 +130,7 @@ def _stage_process(env: simpy.Environment, stage: Stage, inp: Channel, out: Chan
             continue
         for batch in outputs:
             t1 = env.now
-            yield out.store.put((env.now + stage.latency, batch))
+            yield from _put(env, out, env.now + stage.latency, batch)
             out.record(env.now)
             stage.blocked += env.now - t1
             stage.mark(t1, env.now, "blocked")
@@ -114,7 +138,7 @@ def _stage_process(env: simpy.Environment, stage: Stage, inp: Channel, out: Chan
 
 def _source_process(env: simpy.Environment, batches: list[Any], out: Channel):
     for batch in batches:
-        yield out.store.put((env.now, batch))
+        yield from _put(env, out, env.now, batch)
         out.record(env.now)
     yield out.store.put(END)
     out.record(env.now)
@@ -131,11 +155,20 @@ class TimingResult:
     queue_series: dict[str, list[tuple[float, int]]]  # per channel: (time, occupancy) at each change
 
 
-def simulate(stages: list[Stage], source_batches: list[Any], queue_depth: int) -> TimingResult:
-    """Run the stages in order, fed with ``source_batches``, and time them."""
+def simulate(stages: list[Stage], source_batches: list[Any], queue_depth: int,
+             capacities: list[int] | None = None) -> TimingResult:
+    """Run the stages in order, fed with ``source_batches``, and time them.
+
+    Each channel (the input of each stage) holds ``queue_depth`` batches, or,
+    with ``capacities``, that many records (one number per stage input).
+    """
     env = simpy.Environment()
     names = ["input"] + [f"{a.name}->{b.name}" for a, b in zip(stages, stages[1:])]
-    channels = [Channel(n, simpy.Store(env, capacity=queue_depth), queue_depth) for n in names]
+    if capacities is None:
+        channels = [Channel(n, simpy.Store(env, capacity=queue_depth), queue_depth) for n in names]
+    else:
+        channels = [Channel(n, simpy.Store(env), queue_depth, simpy.Container(env, capacity=cap, init=cap))
+                    for n, cap in zip(names, capacities)]
     env.process(_source_process(env, source_batches, channels[0]))
     for i, stage in enumerate(stages):
         out = channels[i + 1] if i + 1 < len(channels) else None
@@ -168,8 +201,13 @@ def simulate(stages: list[Stage], source_batches: list[Any], queue_depth: int) -
 
 
 def cycles_for(work: float, throughput: float, instances: int) -> float:
-    """Busy cycles of a batch: its work at ``throughput`` items/cycle on each instance."""
-    return float(math.ceil(work / (throughput * instances))) if work > 0 else 0.0
+    """Busy cycles of a batch: its work at ``throughput`` items/cycle on each instance.
+
+    Not rounded up per batch: a unit streams items, so a batch boundary costs
+    no partial cycle, and the total over a frame does not depend on how the
+    work is split into batches.
+    """
+    return float(work) / (throughput * instances) if work > 0 else 0.0
 
 
 def chunks(batch: dict[str, np.ndarray], size: int) -> list[dict[str, np.ndarray]]:

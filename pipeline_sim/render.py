@@ -19,7 +19,7 @@ from typing import Any, Callable
 import numpy as np
 import pandas as pd
 
-from pipeline_sim.config import ArchConfig
+from pipeline_sim.config import ArchConfig, PipelineConfig
 from pipeline_sim.counters import CounterSet, counters_frame
 from pipeline_sim.draw import Draw, build_draw
 from pipeline_sim.errors import UserError
@@ -35,6 +35,9 @@ from units.triangle_setup import TriangleSetup
 from units.zcull import ZCull
 
 UNIT_ORDER = ("triangle_setup", "tile_traverser", "tile_test", "zcull", "sample_tester", "shading", "rop")
+# what each unit's input channel carries
+INPUT_KIND = {"triangle_setup": "triangles", "tile_traverser": "triangles", "tile_test": "tiles", "zcull": "tiles",
+              "sample_tester": "tiles", "shading": "samples", "rop": "samples"}
 
 # bytes moved per record, for the memory-traffic counters
 SETUP_BYTES_IN = 3 * 2 * (16 + 8)  # three vertices, two times, clip xyzw + lens shift
@@ -221,7 +224,13 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     stages = [Stage(name, fn, lat) for name, fn, lat in stage_defs if name not in bypassed]
     ids = np.arange(draw.n, dtype=np.int64)
     tri_batches = [ids[i : i + pcfg.triangles_per_batch] for i in range(0, draw.n, pcfg.triangles_per_batch)]
-    timing = simulate(stages, tri_batches, pcfg.queue_depth)
+    # FIFOs hold queue_depth batches of the shipped default size, counted in
+    # records: a batch size then sets only the granularity of the timing
+    default = PipelineConfig()
+    per_kind = {"triangles": default.triangles_per_batch, "tiles": default.tiles_per_batch,
+                "samples": default.samples_per_batch}
+    capacities = [pcfg.queue_depth * per_kind[INPUT_KIND[st.name]] for st in stages]
+    timing = simulate(stages, tri_batches, pcfg.queue_depth, capacities)
     image = rop.resolve()
     wall = time.perf_counter() - start
     counters = counters_frame([cs[name] for name in UNIT_ORDER])
