@@ -22,7 +22,9 @@ from units.sample_tester import inside_test
 from units.triangle_setup import TriangleSetup
 
 W, H, SPP = 64, 48, 4
-BASE = ["pipeline.triangles_per_batch=2", "pipeline.tiles_per_batch=64"]
+# small batches and FIFOs (one default batch of records each) keep z-cull close
+# behind the ROP, so the occluder's depths are known before the hidden tiles come
+BASE = ["pipeline.triangles_per_batch=2", "pipeline.tiles_per_batch=64", "pipeline.queue_depth=1"]
 
 
 def occluded_scene(seed, n_behind=400, lens=True, motion=True):
