@@ -27,7 +27,7 @@ from pipeline_sim.pipeline import Stage, TimingResult, chunks, count_records, cy
 from pipeline_sim.sampling import make_samples
 from pipeline_sim.shaders import standard_params, standard_shader
 from units.rop import Rop
-from units.sample_tester import SampleTester
+from units.sample_tester import EV_2D, EV_PIXELS, TEST_OPS_MADD, TEST_OPS_MUL, SampleTester
 from units.shading_cache import Shading
 from units.tile_test import TileTest
 from units.tile_traverser import TileTraverser
@@ -38,6 +38,9 @@ UNIT_ORDER = ("triangle_setup", "tile_traverser", "tile_test", "zcull", "sample_
 # what each unit's input channel carries
 INPUT_KIND = {"triangle_setup": "triangles", "tile_traverser": "triangles", "tile_test": "tiles", "zcull": "tiles",
               "sample_tester": "tiles", "shading": "samples", "rop": "samples"}
+
+# sample-tester work per test of each dimension (2D, xyt, xyuv, xyuvt), relative to a 5D test
+TEST_WEIGHTS = np.array([(a + m) / (TEST_OPS_MADD[3] + TEST_OPS_MUL[3]) for a, m in zip(TEST_OPS_MADD, TEST_OPS_MUL)])
 
 # bytes moved per record, for the memory-traffic counters
 SETUP_BYTES_IN = 3 * 2 * (16 + 8)  # three vertices, two times, clip xyzw + lens shift
@@ -180,7 +183,10 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         c.add("bytes_read", int(ev[2]) * 20)
         c.add("bytes_written", n * SAMPLE_RECORD_BYTES)
         cfg = arch.sample_tester
-        return chunks(out, pcfg.samples_per_batch), cycles_for(ev[0] + ev[3], cfg.throughput, cfg.instances)
+        # throughput counts 5D tests; a test of fewer dimensions takes its share
+        # of a 5D test's arithmetic, a visited pixel one slot (its range lookup)
+        work = float(np.dot(ev[EV_2D:EV_2D + 4], TEST_WEIGHTS)) + ev[EV_PIXELS]
+        return chunks(out, pcfg.samples_per_batch), cycles_for(work, cfg.throughput, cfg.instances)
 
     def step_shade(batch):
         out, ops, ev = shading.run(batch)

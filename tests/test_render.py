@@ -249,6 +249,16 @@ def test_specialization_changes_cost_never_the_image(root, scene_name):
         assert c["tests_3d_xyt"] == c["tests_5d"] == 0 and c["tests_4d_xyuv"] > 0
     if scene_name != "default":
         assert on.counter("sample_tester", "madd") < off.counter("sample_tester", "madd")
+        # ... and so are the sample tester's simulated cycles: a test costs its arithmetic
+        busy = {k: r.timing.units.set_index("unit").loc["sample_tester", "busy"] for k, r in (("on", on), ("off", off))}
+        assert busy["on"] < busy["off"]
+    # independent recount: busy = (sum of tests weighted by their madd + mul
+    # relative to a 5D test + visited pixels) / (throughput x instances)
+    weights = [(6 + 0) / 48, (26 + 10) / 48, (23 + 10) / 48, 1.0]
+    work = sum(w * c[n] for w, n in zip(weights, c)) + on.counter("sample_tester", "pixels_visited")
+    cfg = load_arch().sample_tester
+    busy_on = on.timing.units.set_index("unit").loc["sample_tester", "busy"]
+    assert busy_on == pytest.approx(work / (cfg.throughput * cfg.instances), rel=1e-9)
 
 
 @nb.njit(cache=True)
