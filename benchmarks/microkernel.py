@@ -10,7 +10,8 @@ moving, defocused triangle at a time against a block of samples:
 * inside when every e_k has the sign of D (no top-left tie rule, no depth).
 
 It follows the shapes PERFORMANCE.md recommends: float32 throughout, an int32
-accumulator, loops that start at 0, no structured arrays. Single-threaded,
+accumulator (``cnt = np.int32(cnt + ...)``: numba types ``cnt += np.int32(...)``
+as int64), loops that start at 0, no structured arrays. Single-threaded,
 like the pipeline's sample tester kernel, and without fastmath (the pipeline's
 kernel uses none either).
 """
@@ -77,7 +78,7 @@ def count_inside(x, y, u, v, t, vx, vy, vw, dx, dy, dw, lx, ly):
             d = X0 * a0 + Y0 * b0 + W0 * c0
             pos = (e0 >= zero) & (e1 >= zero) & (e2 >= zero) & (d > zero)
             neg = (e0 <= zero) & (e1 <= zero) & (e2 <= zero) & (d < zero)
-            cnt += np.int32(pos | neg)
+            cnt = np.int32(cnt + np.int32(pos | neg))  # (cnt += ... would widen cnt to int64)
         counts[i] = cnt
     return counts
 
@@ -157,3 +158,164 @@ def measure(n_tests: int, n_samples: int = 4096, repeats: int = 5) -> dict:
         "tests_per_cpu_s": tests / cmed, "coverage": float(counts.sum()) / tests,
         "check_mismatch_vs_float64": mismatch, "check_tests": int(min(8, n_tri) * n_samples),
     }
+
+
+# ---------------------------------------------------------------------------
+# Bare kernels per dimension over (triangle, sample list) records
+#
+# The same inside test specialized like the pipeline's sample tester paths:
+# 2D (edge functions once per record), xyt (vertices lerped in t), xyuv
+# (vertices shifted by the lens) and xyuvt (both, with the lens shift itself
+# lerped in t: X = X0 + t dX + u (LX + t dLX), as in the pipeline's 5D test).
+# Record r tests triangle ``rec_tri[r]`` against the samples
+# ``[rec_off[r], rec_off[r + 1])`` of the structure-of-arrays x, y (absolute
+# pixel coordinates), u, v, t; ``p0, dp`` are (T, 3, 4) and ``l0, dl``
+# (T, 3, 2) float32 pixel-space 2DH vertices, as in the triangle table.
+# Returns the int32 count of inside samples per record.
+# benchmarks/tester_speed.py feeds them exactly the samples the sample tester
+# counts as tested.
+
+
+@nb.njit(cache=True, inline="always")
+def _inside(x, y, X0, Y0, W0, X1, Y1, W1, X2, Y2, W2):
+    a0 = Y2 * W1 - W2 * Y1
+    b0 = W2 * X1 - X2 * W1
+    c0 = X2 * Y1 - Y2 * X1
+    a1 = Y0 * W2 - W0 * Y2
+    b1 = W0 * X2 - X0 * W2
+    c1 = X0 * Y2 - Y0 * X2
+    a2 = Y1 * W0 - W1 * Y0
+    b2 = W1 * X0 - X1 * W0
+    c2 = X1 * Y0 - Y1 * X0
+    e0 = a0 * x + b0 * y + c0
+    e1 = a1 * x + b1 * y + c1
+    e2 = a2 * x + b2 * y + c2
+    d = X0 * a0 + Y0 * b0 + W0 * c0
+    zero = np.float32(0.0)
+    pos = (e0 >= zero) & (e1 >= zero) & (e2 >= zero) & (d > zero)
+    neg = (e0 <= zero) & (e1 <= zero) & (e2 <= zero) & (d < zero)
+    return np.int32(pos | neg)
+
+
+@nb.njit(cache=True)
+def count_records_2d(rec_tri, rec_off, x, y, u, v, t, p0, dp, l0, dl):
+    counts = np.zeros(rec_tri.shape[0], np.int32)
+    zero = np.float32(0.0)
+    for r in range(rec_tri.shape[0]):
+        i = rec_tri[r]
+        X0, Y0, W0 = p0[i, 0, 0], p0[i, 0, 1], p0[i, 0, 3]
+        X1, Y1, W1 = p0[i, 1, 0], p0[i, 1, 1], p0[i, 1, 3]
+        X2, Y2, W2 = p0[i, 2, 0], p0[i, 2, 1], p0[i, 2, 3]
+        a0 = Y2 * W1 - W2 * Y1
+        b0 = W2 * X1 - X2 * W1
+        c0 = X2 * Y1 - Y2 * X1
+        a1 = Y0 * W2 - W0 * Y2
+        b1 = W0 * X2 - X0 * W2
+        c1 = X0 * Y2 - Y0 * X2
+        a2 = Y1 * W0 - W1 * Y0
+        b2 = W1 * X0 - X1 * W0
+        c2 = X1 * Y0 - Y1 * X0
+        d = X0 * a0 + Y0 * b0 + W0 * c0
+        dpos = d > zero
+        dneg = d < zero
+        o0, o1 = rec_off[r], rec_off[r + 1]
+        xs = x[o0:o1]
+        ys = y[o0:o1]
+        cnt = np.int32(0)
+        for s in range(o1 - o0):
+            e0 = a0 * xs[s] + b0 * ys[s] + c0
+            e1 = a1 * xs[s] + b1 * ys[s] + c1
+            e2 = a2 * xs[s] + b2 * ys[s] + c2
+            pos = (e0 >= zero) & (e1 >= zero) & (e2 >= zero) & dpos
+            neg = (e0 <= zero) & (e1 <= zero) & (e2 <= zero) & dneg
+            cnt = np.int32(cnt + np.int32(pos | neg))
+        counts[r] = cnt
+    return counts
+
+
+@nb.njit(cache=True)
+def count_records_xyt(rec_tri, rec_off, x, y, u, v, t, p0, dp, l0, dl):
+    counts = np.zeros(rec_tri.shape[0], np.int32)
+    for r in range(rec_tri.shape[0]):
+        i = rec_tri[r]
+        x0, y0, w0 = p0[i, 0, 0], p0[i, 0, 1], p0[i, 0, 3]
+        x1, y1, w1 = p0[i, 1, 0], p0[i, 1, 1], p0[i, 1, 3]
+        x2, y2, w2 = p0[i, 2, 0], p0[i, 2, 1], p0[i, 2, 3]
+        dx0, dy0, dw0 = dp[i, 0, 0], dp[i, 0, 1], dp[i, 0, 3]
+        dx1, dy1, dw1 = dp[i, 1, 0], dp[i, 1, 1], dp[i, 1, 3]
+        dx2, dy2, dw2 = dp[i, 2, 0], dp[i, 2, 1], dp[i, 2, 3]
+        o0, o1 = rec_off[r], rec_off[r + 1]
+        xs = x[o0:o1]
+        ys = y[o0:o1]
+        ts = t[o0:o1]
+        cnt = np.int32(0)
+        for s in range(o1 - o0):
+            tt = ts[s]
+            cnt = np.int32(cnt + _inside(xs[s], ys[s], x0 + tt * dx0, y0 + tt * dy0, w0 + tt * dw0, x1 + tt * dx1,
+                           y1 + tt * dy1, w1 + tt * dw1, x2 + tt * dx2, y2 + tt * dy2, w2 + tt * dw2))
+        counts[r] = cnt
+    return counts
+
+
+@nb.njit(cache=True)
+def count_records_xyuv(rec_tri, rec_off, x, y, u, v, t, p0, dp, l0, dl):
+    counts = np.zeros(rec_tri.shape[0], np.int32)
+    for r in range(rec_tri.shape[0]):
+        i = rec_tri[r]
+        x0, y0, w0 = p0[i, 0, 0], p0[i, 0, 1], p0[i, 0, 3]
+        x1, y1, w1 = p0[i, 1, 0], p0[i, 1, 1], p0[i, 1, 3]
+        x2, y2, w2 = p0[i, 2, 0], p0[i, 2, 1], p0[i, 2, 3]
+        lx0, ly0 = l0[i, 0, 0], l0[i, 0, 1]
+        lx1, ly1 = l0[i, 1, 0], l0[i, 1, 1]
+        lx2, ly2 = l0[i, 2, 0], l0[i, 2, 1]
+        o0, o1 = rec_off[r], rec_off[r + 1]
+        xs = x[o0:o1]
+        ys = y[o0:o1]
+        us = u[o0:o1]
+        vs = v[o0:o1]
+        cnt = np.int32(0)
+        for s in range(o1 - o0):
+            uu = us[s]
+            vv = vs[s]
+            cnt = np.int32(cnt + _inside(xs[s], ys[s], x0 + uu * lx0, y0 + vv * ly0, w0, x1 + uu * lx1,
+                                         y1 + vv * ly1, w1, x2 + uu * lx2, y2 + vv * ly2, w2))
+        counts[r] = cnt
+    return counts
+
+
+@nb.njit(cache=True)
+def count_records_xyuvt(rec_tri, rec_off, x, y, u, v, t, p0, dp, l0, dl):
+    counts = np.zeros(rec_tri.shape[0], np.int32)
+    for r in range(rec_tri.shape[0]):
+        i = rec_tri[r]
+        x0, y0, w0 = p0[i, 0, 0], p0[i, 0, 1], p0[i, 0, 3]
+        x1, y1, w1 = p0[i, 1, 0], p0[i, 1, 1], p0[i, 1, 3]
+        x2, y2, w2 = p0[i, 2, 0], p0[i, 2, 1], p0[i, 2, 3]
+        dx0, dy0, dw0 = dp[i, 0, 0], dp[i, 0, 1], dp[i, 0, 3]
+        dx1, dy1, dw1 = dp[i, 1, 0], dp[i, 1, 1], dp[i, 1, 3]
+        dx2, dy2, dw2 = dp[i, 2, 0], dp[i, 2, 1], dp[i, 2, 3]
+        lx0, ly0, dlx0, dly0 = l0[i, 0, 0], l0[i, 0, 1], dl[i, 0, 0], dl[i, 0, 1]
+        lx1, ly1, dlx1, dly1 = l0[i, 1, 0], l0[i, 1, 1], dl[i, 1, 0], dl[i, 1, 1]
+        lx2, ly2, dlx2, dly2 = l0[i, 2, 0], l0[i, 2, 1], dl[i, 2, 0], dl[i, 2, 1]
+        o0, o1 = rec_off[r], rec_off[r + 1]
+        xs = x[o0:o1]
+        ys = y[o0:o1]
+        us = u[o0:o1]
+        vs = v[o0:o1]
+        ts = t[o0:o1]
+        cnt = np.int32(0)
+        for s in range(o1 - o0):
+            tt = ts[s]
+            uu = us[s]
+            vv = vs[s]
+            cnt = np.int32(cnt + _inside(xs[s], ys[s], x0 + tt * dx0 + uu * (lx0 + tt * dlx0),
+                                         y0 + tt * dy0 + vv * (ly0 + tt * dly0), w0 + tt * dw0,
+                                         x1 + tt * dx1 + uu * (lx1 + tt * dlx1),
+                                         y1 + tt * dy1 + vv * (ly1 + tt * dly1), w1 + tt * dw1,
+                                         x2 + tt * dx2 + uu * (lx2 + tt * dlx2),
+                                         y2 + tt * dy2 + vv * (ly2 + tt * dly2), w2 + tt * dw2))
+        counts[r] = cnt
+    return counts
+
+
+RECORD_KERNELS = (count_records_2d, count_records_xyt, count_records_xyuv, count_records_xyuvt)

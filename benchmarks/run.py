@@ -92,9 +92,12 @@ unless said otherwise:
 8. Sample patterns (benchmarks/patterns.py): the per-pixel discrepancy of
    every sample pattern (scipy.stats.qmc, centered L2) in (x, y), (x, y, t)
    and 5D, and how fast each is generated.
+9. ("tester" section) The sample tester against bare micro-kernels of the
+   same dimension on exactly the samples it tests, record by record
+   (benchmarks/tester_speed.py): issue 3's like-for-like throughput ratio.
 
-``--only SECTION[,SECTION]`` runs some sections only (default, scaling,
-compile, specialization, batch, frame, patterns; "default" is 0-2);
+``--only SECTION[,SECTION]`` runs some sections only (default, tester,
+scaling, compile, specialization, batch, frame, patterns; "default" is 0-2);
 ``--frame-triangles N[,N]`` changes the frame section's sizes.
 """
 
@@ -147,7 +150,7 @@ QUICK = {
     "patterns": {"width": 32, "height": 32, "spp": [16], "pixels": 64},
 }
 # sections in the order they run; --only picks some
-SECTIONS = ("default", "scaling", "compile", "specialization", "batch", "frame", "patterns")
+SECTIONS = ("default", "tester", "scaling", "compile", "specialization", "batch", "frame", "patterns")
 
 
 def log(msg: str) -> None:
@@ -612,6 +615,16 @@ def report(results: dict) -> tuple[str, list[dict]]:
             out.append(f"  cold / cached warm_up: {cp['cold']['warm_up_s'] / max(1e-9, cp['cached']['warm_up_s']):.0f}x; "
                        f"{cp['cache_files']} cache files written")
         out.append("")
+    if "tester" in results:
+        from benchmarks import tester_speed
+        tr = results["tester"]
+        out.append("9. The sample tester against a bare micro-kernel of the same dimension on exactly the samples it "
+                   "tests (benchmarks/tester_speed.py; issue 3 target: tester/micro >= 0.5)")
+        out.extend("  " + line for line in tester_speed.format_table(tr).splitlines())
+        out.append("")
+        for name, r in list(tr["dims"].items()) + [("all", tr["all"])]:
+            add("tester", f"tester_over_micro@{name}", r["ratio"], "ratio")
+            add("tester", f"tester_rate@{name}", r["tester_rate"], "tests/s")
     from benchmarks import batching, frame, patterns, specialization
     for key, mod in (("specialization", specialization), ("batch", batching), ("frame", frame),
                      ("patterns", patterns)):
@@ -675,6 +688,10 @@ def main(argv: list[str] | None = None) -> int:
 
     if "default" in sections:
         results["default"] = bench_default(cfg)
+    if "tester" in sections:
+        from benchmarks import tester_speed
+        log("sample tester against same-dimension micro-kernels on the same tests")
+        results["tester"] = tester_speed.measure(repeats=cfg["micro_repeats"], log=log)
     if "scaling" in sections:
         results["scaling"] = bench_scaling(cfg)
     if "compile" in sections:

@@ -6,6 +6,7 @@ barycentrics with Cramer's rule in float64 — no 2DH edge functions.
 """
 
 import numpy as np
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -108,3 +109,266 @@ def test_specialized_2d_path_equals_generic_test():
                         want.add((tri, py * W + px, s))
     assert len(want) > 200
     assert got == want
+
+
+# ---------------------------------------------------------------------------
+# The tester's fast paths (tile-major sample orders, slot ranges, fused and
+# packed passes, per-edge tolerances, batched pass 2) against a plain loop:
+# every sample of every record, in pixel order, through ``inside_test``.
+
+def reference_run(tester, tiles):
+    """What the sample tester must output for ``tiles``: (covered records as a
+    dict of arrays, events, t-range lookups, samples given the two-stage or
+    tuple-mask test), by testing sample after sample."""
+    from units.sample_tester import EVENTS, _f32_at_least, _f32_at_most
+
+    s, tb, ts = tester.samples, tester.table, tester.tile_size
+    ev = dict.fromkeys(EVENTS, 0)
+    out = {k: [] for k in ("tri", "pix", "sidx", "z", "b0", "b1", "b2", "noread")}
+    lines = tiles.get("lines")
+    masks = tiles.get("mask")
+    searches = extra = 0
+    for i in range(len(tiles["tri"])):
+        tri = int(tiles["tri"][i])
+        moving = bool(np.any(tb.dp_32[tri] != 0) or np.any(tb.dl_32[tri] != 0))
+        lens = bool(np.any(tb.l0_32[tri] != 0))
+        dims = int(moving) + 2 * int(lens)
+        general = dims != 0 or not tester.specialize
+        ta, tb_ = _f32_at_least(tiles["t_lo"][i]), _f32_at_most(tiles["t_hi"][i])
+        ua, ub = _f32_at_least(tiles["u_lo"][i]), _f32_at_most(tiles["u_hi"][i])
+        va, vb = _f32_at_least(tiles["v_lo"][i]), _f32_at_most(tiles["v_hi"][i])
+        za, zb = np.float32(tiles["z_lo"][i]), np.float32(tiles["z_hi"][i])
+        x0, y0 = int(tiles["tx"][i]) * ts, int(tiles["ty"][i]) * ts
+        full_t = tiles["t_lo"][i] <= 0.0 and tiles["t_hi"][i] >= 1.0
+        for py in range(y0, min(y0 + ts, s.height)):
+            for px in range(x0, min(x0 + ts, s.width)):
+                ev["pixels_visited"] += 1
+                searches += not full_t
+                for si in range(s.spp):
+                    k = (py * s.width + px) * s.spp + si
+                    t, u, v = s.t[k], s.u[k], s.v[k]
+                    if not ta <= t <= tb_:
+                        continue
+                    ev["samples_in_range"] += 1
+                    extra += general and (lines is not None or masks is not None)
+                    ok = ua <= u <= ub and va <= v <= vb
+                    if ok and general and lines is not None:
+                        lc, ls, hc, hs, mc, ms, kc, ks = lines[i]
+                        ok = t >= lc + ls * u and t <= hc + hs * u and t >= mc + ms * v and t <= kc + ks * v
+                    if ok and general and masks is not None:
+                        ok = bool((int(masks[i]) >> int(s.tup[k])) & 1)
+                    if not ok:
+                        continue
+                    ev["samples_tested"] += 1
+                    ev[("tests_2d", "tests_3d_xyt", "tests_4d_xyuv", "tests_5d")[dims if tester.specialize else 3]] += 1
+                    hit, b0, b1, b2, z = inside_test(tb.p0_32, tb.dp_32, tb.l0_32, tb.dl_32, tri,
+                                                     np.float32(np.float32(px) + s.x[k]),
+                                                     np.float32(np.float32(py) + s.y[k]), t, u, v,
+                                                     tester.backface_culling, tb.edge_eps)
+                    if hit:
+                        for key, val in (("tri", tri), ("pix", py * s.width + px), ("sidx", si),
+                                         ("z", min(max(z, za), zb)), ("b0", b0), ("b1", b1), ("b2", b2),
+                                         ("noread", tiles["noread"][i])):
+                            out[key].append(val)
+    ev["samples_covered"] = len(out["tri"])
+    dt = {"tri": np.int32, "pix": np.int32, "sidx": np.int32, "noread": np.bool_}
+    return ({k: np.array(v, dt.get(k, np.float32)) for k, v in out.items()}, np.array([ev[e] for e in EVENTS]),
+            searches, extra)
+
+
+def assert_tester_matches_reference(tester, tiles):
+    """The tester's covered samples (bit for bit, in order), events and
+    arithmetic counters equal the plain loop's."""
+    from pipeline_sim.counters import N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+    from units.sample_tester import COVER_OPS_MADD, COVER_OPS_MUL, COVER_OPS_RCP, EVENTS, TEST_OPS_MADD, TEST_OPS_MUL
+
+    got, ops, events = tester.run(tiles)
+    want, want_events, searches, extra = reference_run(tester, tiles)
+    assert [int(e) for e in events] == [int(e) for e in want_events], list(zip(EVENTS, events, want_events))
+    for key in want:
+        assert got[key].dtype == want[key].dtype
+        assert got[key].tobytes() == want[key].tobytes(), key
+    ev = dict(zip(EVENTS, (int(e) for e in want_events)))
+    spp = tester.samples.spp
+    log_spp = 1
+    while (1 << log_spp) <= spp:
+        log_spp += 1
+    n_tests = [ev["tests_2d"], ev["tests_3d_xyt"], ev["tests_4d_xyuv"], ev["tests_5d"]]
+    cov = ev["samples_covered"]
+    has_lines = "lines" in tiles
+    want_ops = np.zeros(N_OPS, np.int64)
+    want_ops[OP_MADD] = (sum(n * m for n, m in zip(n_tests, TEST_OPS_MADD)) + cov * COVER_OPS_MADD
+                         + extra * (4 if has_lines else 0))
+    want_ops[OP_MUL] = sum(n * m for n, m in zip(n_tests, TEST_OPS_MUL)) + cov * COVER_OPS_MUL
+    want_ops[OP_RCP] = cov * COVER_OPS_RCP
+    want_ops[OP_CMP] = 2 * searches * log_spp + extra * (4 if has_lines else 1) + 4 * ev["samples_tested"]
+    assert ops.tolist() == want_ops.tolist()
+    return got, ev
+
+
+def random_draw(rng, n, width, height, motion=True, lens=True):
+    """``n`` random clip-space triangles, a mix of static, moving, defocused and both."""
+    q = np.zeros((n, 3, 4))
+    w = rng.uniform(0.6, 3.0, (n, 1))
+    centre = rng.uniform(-1.1, 1.1, (n, 1, 2))
+    size = rng.uniform(0.05, 0.6, (n, 1, 1))
+    q[:, :, 3] = w * rng.uniform(0.9, 1.1, (n, 3))
+    q[:, :, :2] = (centre + size * rng.uniform(-1, 1, (n, 3, 2))) * q[:, :, 3:4]
+    q[:, :, 2] = rng.uniform(-0.9, 0.9, (n, 3)) * q[:, :, 3]
+    r = q.copy()
+    kind = rng.integers(0, 4, n)  # 0 static, 1 moving, 2 defocused, 3 both
+    mov = (kind & 1).astype(bool) & motion
+    r[mov, :, :2] += rng.uniform(-0.3, 0.3, (int(mov.sum()), 1, 2)) * q[mov, :, 3:4]
+    r[mov, :, 3] *= rng.uniform(0.9, 1.1, (int(mov.sum()), 1))
+    lx = np.zeros((n, 3, 2))
+    ly = np.zeros((n, 3, 2))
+    dof = (kind & 2).astype(bool) & lens
+    coc = rng.uniform(0.0, 0.15, (int(dof.sum()), 3, 1))
+    lx[dof] = coc * np.array([1.0, 1.3])
+    ly[dof] = coc * np.array([1.0, 0.8])
+    return q, r, lx, ly
+
+
+@pytest.mark.parametrize("tile_size, spp, pattern, width, height, cull, specialize", [
+    (4, 16, "net", 48, 32, False, True),
+    (8, 16, "net", 50, 30, False, True),  # partial tiles at the right and bottom
+    (4, 8, "random", 37, 21, True, True),  # slots not t-ordered across pixels, back faces culled
+    (2, 4, "stratified", 24, 18, False, False),  # every test as 5D
+    (16, 4, "net", 40, 40, False, True),
+])
+def test_fast_paths_match_plain_loop(tile_size, spp, pattern, width, height, cull, specialize):
+    from pipeline_sim.sampling import make_samples
+    from units.sample_tester import SampleTester
+
+    rng = np.random.default_rng(tile_size * 1000 + spp)
+    q, r, lx, ly = random_draw(rng, 12, width, height)
+    setup, _, tiles = setup_and_tiles(q, r, lx, ly, width, height, tile_size=tile_size, backface_culling=cull)
+    samples = make_samples(width, height, spp, 3, lens=True, motion=True, pattern=pattern)
+    tester = SampleTester(None, setup.table, samples, tile_size, cull, specialize)
+    _, ev = assert_tester_matches_reference(tester, tiles)
+    assert ev["samples_covered"] > 100
+    assert ev["samples_tested"] < ev["pixels_visited"] * spp  # the intervals cut samples
+    # records one at a time (no batching of pass 2) give the same
+    per_record = [tester.run({k: v[i:i + 1] for k, v in tiles.items()})[0] for i in range(len(tiles["tri"]))]
+    whole = tester.run(tiles)[0]
+    for key in whole:
+        assert np.concatenate([o[key] for o in per_record]).tobytes() == whole[key].tobytes()
+
+
+@pytest.mark.parametrize("algorithm", ["two_stage", "interleave_uvt"])
+def test_fast_paths_match_plain_loop_with_lines_and_masks(algorithm):
+    from pipeline_sim.sampling import make_samples
+    from units.sample_tester import SampleTester
+
+    width, height, spp = 40, 24, 8
+    rng = np.random.default_rng(7)
+    q, r, lx, ly = random_draw(rng, 10, width, height)
+    pattern = "interleave" if algorithm == "interleave_uvt" else "net"
+    samples = make_samples(width, height, spp, 5, lens=True, motion=True, pattern=pattern, interleave_tuples=32)
+    tuples = samples.tuples if algorithm == "interleave_uvt" else None
+    setup, _, tiles = setup_and_tiles(q, r, lx, ly, width, height, tile_size=4, algorithm=algorithm, tuples=tuples)
+    assert ("lines" if algorithm == "two_stage" else "mask") in tiles
+    tester = SampleTester(None, setup.table, samples, 4, False)
+    _, ev = assert_tester_matches_reference(tester, tiles)
+    assert ev["samples_covered"] > 50
+
+
+@given(moving_triangle(allow_w_cross=False), st.integers(0, 2**31), st.sampled_from([2, 4, 8]))
+def test_fast_paths_match_plain_loop_on_adversarial_triangles(tri, seed, tile_size):
+    from pipeline_sim.sampling import make_samples
+    from units.sample_tester import SampleTester
+
+    q, r, lx, ly = tri
+    width, height = 24, 16
+    setup, alive, tiles = setup_and_tiles(q, r, lx, ly, width, height, tile_size=tile_size)
+    samples = make_samples(width, height, 4, seed % 1000, lens=True, motion=True)
+    tester = SampleTester(None, setup.table, samples, tile_size, False)
+    assert_tester_matches_reference(tester, tiles)
+
+
+def test_tolerance_bounds_float32_edge_error():
+    """``_tolerances``: for samples in the tile's intervals, the float32 edge
+    value never differs from ``_decide``'s float64 re-test by more than the
+    per-edge tolerance (which is what lets pass 1 drop samples for good)."""
+    from units.sample_tester import _tolerances
+
+    rng = np.random.default_rng(3)
+    f32 = np.float32
+    worst = 0.0
+    for _ in range(60):
+        scale = 10.0 ** rng.uniform(-2, 3)
+        c = np.zeros(40, np.float32)
+        c[0:9] = rng.uniform(-1, 1, 9) * scale  # X, Y, W at t = 0
+        c[6:9] = rng.uniform(0.05, 2, 3) * scale
+        c[9:18] = rng.uniform(-0.3, 0.3, 9) * scale  # motion
+        c[18:24] = rng.uniform(-0.2, 0.2, 6) * scale  # lens
+        c[24:30] = rng.uniform(-0.05, 0.05, 6) * scale
+        ta, tb = sorted(rng.uniform(0, 1, 2).astype(f32))
+        ua, ub, va, vb = f32(-1), f32(1), f32(-1), f32(1)
+        x_max, y_max = 64.0, 48.0
+        tol = -np.array(_tolerances(tuple(c), ta, tb, ua, ub, va, vb, x_max, y_max, f32(np.inf)), np.float64)
+        n = 2000
+        t = rng.uniform(ta, tb, n).astype(f32)
+        u = rng.uniform(-1, 1, n).astype(f32)
+        v = rng.uniform(-1, 1, n).astype(f32)
+        x = rng.uniform(0, x_max, n).astype(f32)
+        y = rng.uniform(0, y_max, n).astype(f32)
+        X = [c[k] + t * c[9 + k] + u * (c[18 + k] + t * c[24 + k]) for k in range(3)]
+        Y = [c[3 + k] + t * c[12 + k] + v * (c[21 + k] + t * c[27 + k]) for k in range(3)]
+        W = [c[6 + k] + t * c[15 + k] for k in range(3)]
+        e32 = _edges_np(X, Y, W, x, y)
+        e64 = _edges_np([a.astype(np.float64) for a in X], [a.astype(np.float64) for a in Y],
+                        [a.astype(np.float64) for a in W], x.astype(np.float64), y.astype(np.float64))
+        for k in range(3):
+            err = np.abs(e32[k].astype(np.float64) - e64[k])
+            assert np.all(err <= tol[k]), (k, err.max(), tol[k])
+            worst = max(worst, float((err / tol[k]).max()))
+    assert worst > 0.01  # the tolerance is a bound, not orders of magnitude off
+
+
+def _edges_np(X, Y, W, x, y):
+    """The three edge values as ``_edges`` and ``_decide`` compute them, elementwise."""
+    out = []
+    for k in range(3):
+        i, j = (k + 1) % 3, (k + 2) % 3
+        a = Y[j] * W[i] - W[j] * Y[i]
+        b = W[j] * X[i] - X[j] * W[i]
+        c = X[j] * Y[i] - Y[j] * X[i]
+        out.append(a * x + b * y + c)
+    return out
+
+
+@pytest.mark.parametrize("motion", [False, True])
+def test_fast_paths_match_plain_loop_on_samples_on_shared_edges(motion):
+    """A fan of triangles over a grid of pixel centres, sampled at pixel
+    centres and corners: many samples lie exactly on edges and vertices,
+    where only ``_decide``'s float64 re-test can tell (so pass 1 must never
+    drop them)."""
+    from pipeline_sim.sampling import make_samples
+    from units.sample_tester import SampleTester
+
+    width, height = 20, 14
+    table = np.array([[0.5, 0.5, 0, 0, 0.5], [0.0, 0.0, 0, 0, 0.25], [0.5, 0.0, 0, 0, 0.5], [0.0, 0.5, 0, 0, 0.75]])
+    samples = make_samples(width, height, 4, 0, lens=False, motion=motion, pattern="table", table=table)
+    pts = [(x + 0.5, y + 0.5) for y in range(1, height, 4) for x in range(1, width, 5)]
+    cols = len(range(1, width, 5))
+    tris = []
+    for i in range(len(pts)):
+        if (i + 1) % cols == 0 or i + cols + 1 >= len(pts):
+            continue
+        a, b, c, d = pts[i], pts[i + 1], pts[i + cols], pts[i + cols + 1]
+        tris += [(a, b, d), (a, d, c)]
+    n = len(tris)
+    q = np.zeros((n, 3, 4))
+    for i, tri in enumerate(tris):
+        for k, (x, y) in enumerate(tri):
+            w = 1.0 + 0.37 * ((i * 7 + k) % 5)  # rounded vertices: float32 edge values err
+            q[i, k] = (2 * x / width - 1) * w, (1 - 2 * y / height) * w, 0.5 * w, w
+    r = q.copy()
+    if motion:  # a whole-pixel shift over the shutter: at t = 0.5 the edges sit on half pixels
+        r[:, :, 0] += 2 * 2.0 / width * r[:, :, 3]
+    zero = np.zeros((n, 3, 2))
+    setup, _, tiles = setup_and_tiles(q, r, zero, zero, width, height, tile_size=4)
+    tester = SampleTester(None, setup.table, samples, 4, False)
+    _, ev = assert_tester_matches_reference(tester, tiles)
+    assert ev["samples_covered"] > 300

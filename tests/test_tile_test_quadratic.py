@@ -93,7 +93,7 @@ def vertices(f, g, h, pts, k=None):
     for kk in range(3) if k is None else [k]:
         A = pts @ f[0, kk]
         B = pts @ g[0, kk]
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # non-finite ones are dropped
             v = -B / (2.0 * A)
         out.append(v[np.isfinite(v)])
     return np.concatenate(out)

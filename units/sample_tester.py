@@ -45,12 +45,12 @@ COVER_OPS_MUL = 4
 COVER_OPS_MADD = 3 + 3
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _top_left(a, b):
     return a > 0.0 or (a == 0.0 and b > 0.0)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _edges(X0, Y0, W0, X1, Y1, W1, X2, Y2, W2):
     """Edge k opposite vertex k: n_k = p_j x p_i, (i, j) = (k+1, k+2) mod 3, and
     the orientation D = p0 . (p2 x p1) (004 eq. 3 at fixed t; Olano and Greer)."""
@@ -119,7 +119,7 @@ def _decide(a0, b0, c0, a1, b1, c1, a2, b2, c2, D, X0, Y0, W0, Z0, X1, Y1, W1, Z
     return True, np.float32(e0 * inv), np.float32(e1 * inv), np.float32(e2 * inv), z
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _at(p0, d, l0, dl, t, u):
     """A vertex coordinate at time t and lens coordinate u (001 §3.1)."""
     return p0 + t * d + u * (l0 + t * dl)
@@ -148,8 +148,7 @@ def inside_test(p0, dp, l0, dl, tri, x, y, t, u, v, backface_culling, edge_eps):
     return _decide(a0, b0, c0, a1, b1, c1, a2, b2, c2, D, X0, Y0, W0, Z0, X1, Y1, W1, Z1, X2, Y2, W2, Z2,
                    x, y, backface_culling, edge_eps[tri])
 
-
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _f32_at_least(a):
     """The smallest float32 >= a: for float32 t, t >= a exactly when t >= this."""
     f = np.float32(a)
@@ -158,7 +157,7 @@ def _f32_at_least(a):
     return f
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _f32_at_most(a):
     """The largest float32 <= a."""
     f = np.float32(a)
@@ -167,252 +166,808 @@ def _f32_at_most(a):
     return f
 
 
+# Pass-1 arithmetic of the inside test (``kind``): a static, pinhole
+# triangle's edge functions are set up once per triangle (its motion and lens
+# terms are +-0; dropping them changes at most the sign of a zero result,
+# never a non-zero value or a comparison); any other triangle's vertices are
+# computed at each sample's (t, u, v) with the full 5D formula that
+# ``_decide`` evaluates. (Separate xyt and xyuv formulas measured no faster:
+# the passes wait on memory more than on arithmetic.)
+K_2D, K_5D = 0, 3
+
+
 @nb.njit(cache=True, inline="always")
-def _mark(j0, j1, general, extra, rt, ru, rv, rx, ry, rtup, colf, cand, fpx0, fy, iv, ln, mk, neps, tc):
-    """Pass 1 over samples [j0, j1) of a tile row: interval test and float32
-    edge functions, branch-free. Marks as candidates the samples in the
-    intervals that no edge excludes by more than the float32 error bound.
-    ``iv`` holds (t_lo, t_hi, u_lo, u_hi, v_lo, v_hi) and ``tc`` the
-    triangle's constants. With ``extra`` (two-stage culling, Interleave UVT)
-    a sample is in the intervals only if it also lies between the tile's time
-    lines ``ln`` (t >= c + s u, t <= c + s u, then the same in v; 001 §3.4)
-    and its tuple's bit is set in ``mk``. Returns (in the intervals, in t^,
-    candidates) as int32 counts."""
-    ta, tb, ua, ub, va, vb = iv[0], iv[1], iv[2], iv[3], iv[4], iv[5]
-    X00, X01, X02, Y00, Y01, Y02, W00, W01, W02 = tc[0], tc[1], tc[2], tc[3], tc[4], tc[5], tc[6], tc[7], tc[8]
-    dX0, dX1, dX2, dY0, dY1, dY2, dW0, dW1, dW2 = (tc[9], tc[10], tc[11], tc[12], tc[13], tc[14], tc[15],
-                                                    tc[16], tc[17])
-    LX0, LX1, LX2, LY0, LY1, LY2 = tc[18], tc[19], tc[20], tc[21], tc[22], tc[23]
-    dLX0, dLX1, dLX2, dLY0, dLY1, dLY2 = tc[24], tc[25], tc[26], tc[27], tc[28], tc[29]
-    sa0, sb0, sc0, sa1, sb1, sc1, sa2, sb2, sc2, ssg = (tc[30], tc[31], tc[32], tc[33], tc[34], tc[35], tc[36],
-                                                        tc[37], tc[38], tc[39])
+def _keep(kind, t, u, v, x, y, c, n0, n1, n2):
+    """Pass 1's test of one sample: False when an edge excludes it for certain.
+
+    ``c`` holds the triangle's float32 constants (see ``_constants``); ``n_k``
+    is minus the tolerance of edge k: a sample whose float32 edge value
+    (oriented by D) is below it is outside in float32 and in the float64
+    re-test of ``_decide`` alike (see ``_tolerances``)."""
     one = np.float32(1.0)
-    n_all = np.int32(0)
-    n_t = np.int32(0)
-    n_c = np.int32(0)
-    # views from j0, looped from 0: no negative-index checks, so the loops vectorize
-    rt = rt[j0:j1]
-    ru = ru[j0:j1]
-    rv = rv[j0:j1]
-    rx = rx[j0:j1]
-    ry = ry[j0:j1]
-    colf = colf[j0:j1]
-    cand = cand[j0:j1]
-    lc, ls, hc, hs, mc, ms, kc, ks = ln[0], ln[1], ln[2], ln[3], ln[4], ln[5], ln[6], ln[7]
-    if extra:
-        rtup = rtup[j0:j1]
-    if general:
-        for j in range(j1 - j0):
-            t = rt[j]
-            u = ru[j]
-            v = rv[j]
-            in_t = (t >= ta) & (t <= tb)
-            in_all = in_t & (u >= ua) & (u <= ub) & (v >= va) & (v <= vb)
-            if extra:
-                in_all = (in_all & (t >= lc + ls * u) & (t <= hc + hs * u) & (t >= mc + ms * v)
-                          & (t <= kc + ks * v) & (((mk >> np.uint64(rtup[j])) & np.uint64(1)) != 0))
-            x = (fpx0 + colf[j]) + rx[j]
-            y = fy + ry[j]
-            X0 = _at(X00, dX0, LX0, dLX0, t, u)
-            Y0 = _at(Y00, dY0, LY0, dLY0, t, v)
-            W0 = W00 + t * dW0
-            X1 = _at(X01, dX1, LX1, dLX1, t, u)
-            Y1 = _at(Y01, dY1, LY1, dLY1, t, v)
-            W1 = W01 + t * dW1
-            X2 = _at(X02, dX2, LX2, dLX2, t, u)
-            Y2 = _at(Y02, dY2, LY2, dLY2, t, v)
-            W2 = W02 + t * dW2
-            a0, b0, c0, a1, b1, c1, a2, b2, c2, D = _edges(X0, Y0, W0, X1, Y1, W1, X2, Y2, W2)
-            sg = one if D > 0 else -one
-            e0 = (a0 * x + b0 * y + c0) * sg
-            e1 = (a1 * x + b1 * y + c1) * sg
-            e2 = (a2 * x + b2 * y + c2) * sg
-            m = e0 if e0 < e1 else e1
-            m = m if m < e2 else e2
-            c = in_all & (m >= neps)
-            cand[j] = c
-            n_all += np.int32(in_all)
-            n_t += np.int32(in_t)
-            n_c += np.int32(c)
+    if kind == K_2D:
+        sg = c[39]
+        e0 = (c[30] * x + c[31] * y + c[32]) * sg
+        e1 = (c[33] * x + c[34] * y + c[35]) * sg
+        e2 = (c[36] * x + c[37] * y + c[38]) * sg
     else:
-        for j in range(j1 - j0):
-            t = rt[j]
-            u = ru[j]
-            v = rv[j]
-            in_t = (t >= ta) & (t <= tb)
-            in_all = in_t & (u >= ua) & (u <= ub) & (v >= va) & (v <= vb)
-            x = (fpx0 + colf[j]) + rx[j]
-            y = fy + ry[j]
-            e0 = (sa0 * x + sb0 * y + sc0) * ssg
-            e1 = (sa1 * x + sb1 * y + sc1) * ssg
-            e2 = (sa2 * x + sb2 * y + sc2) * ssg
-            m = e0 if e0 < e1 else e1
-            m = m if m < e2 else e2
-            c = in_all & (m >= neps)
-            cand[j] = c
-            n_all += np.int32(in_all)
-            n_t += np.int32(in_t)
-            n_c += np.int32(c)
-    return n_all, n_t, n_c
+        X0 = _at(c[0], c[9], c[18], c[24], t, u)
+        X1 = _at(c[1], c[10], c[19], c[25], t, u)
+        X2 = _at(c[2], c[11], c[20], c[26], t, u)
+        Y0 = _at(c[3], c[12], c[21], c[27], t, v)
+        Y1 = _at(c[4], c[13], c[22], c[28], t, v)
+        Y2 = _at(c[5], c[14], c[23], c[29], t, v)
+        W0 = c[6] + t * c[15]
+        W1 = c[7] + t * c[16]
+        W2 = c[8] + t * c[17]
+        a0, b0, c0, a1, b1, c1, a2, b2, c2, D = _edges(X0, Y0, W0, X1, Y1, W1, X2, Y2, W2)
+        sg = one if D > 0 else -one
+        e0 = (a0 * x + b0 * y + c0) * sg
+        e1 = (a1 * x + b1 * y + c1) * sg
+        e2 = (a2 * x + b2 * y + c2) * sg
+    return (e0 >= n0) & (e1 >= n1) & (e2 >= n2)
+
+
+@nb.njit(cache=True, inline="always")
+def _mark_range_fused(kind, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2):
+    """The interval test and pass 1 in one pass over the contiguous samples
+    ``k0 + i``, i < n (for runs expected to lie mostly in the intervals):
+    candidates (``cand[i]``) are the samples in the intervals that ``_keep``
+    keeps. Branch-free, unsigned indices (no negative-index checks) and int32
+    counts (an int64 one halves the vector width): numba vectorizes it.
+    Returns (in t^, in all intervals, candidates)."""
+    n_t = np.int32(0)
+    n_a = np.int32(0)
+    nc = np.int32(0)
+    for i in range(n):
+        k = np.uint64(k0 + i)
+        t = st[k]
+        u = su[k]
+        v = sv[k]
+        in_t = (t >= ta) & (t <= tb)
+        in_a = in_t & (u >= ua) & (u <= ub) & (v >= va) & (v <= vb)
+        keep = _keep(kind, t, u, v, ax[k], ay[k], c, n0, n1, n2) & in_a
+        cand[i] = keep
+        n_t = np.int32(n_t + np.int32(in_t))
+        n_a = np.int32(n_a + np.int32(in_a))
+        nc = np.int32(nc + np.int32(keep))
+    return n_t, n_a, nc
+
+
+@nb.njit(cache=True, inline="always")
+def _mark_packed(kind, n, ct, cu, cv, cx, cy, cand, c, n0, n1, n2):
+    """Pass 1 over samples packed beforehand: all lie in the intervals."""
+    nc = np.int32(0)
+    for j in range(n):
+        k = _keep(kind, ct[j], cu[j], cv[j], cx[j], cy[j], c, n0, n1, n2)
+        cand[j] = k
+        nc = np.int32(nc + np.int32(k))
+    return nc
+
+
+@nb.njit(cache=True, inline="always")
+def _intervals(n, k0, st, su, sv, msk, ta, tb, ua, ub, va, vb):
+    """Interval test of the contiguous samples ``k0 + i``, i < n, into ``msk[i]``;
+    (in t^, in all intervals) as int32 counts."""
+    n_t = np.int32(0)
+    n_a = np.int32(0)
+    for i in range(n):
+        k = np.uint64(k0 + i)
+        t = st[k]
+        u = su[k]
+        v = sv[k]
+        in_t = (t >= ta) & (t <= tb)
+        in_a = in_t & (u >= ua) & (u <= ub) & (v >= va) & (v <= vb)
+        msk[i] = in_a
+        n_t = np.int32(n_t + np.int32(in_t))
+        n_a = np.int32(n_a + np.int32(in_a))
+    return n_t, n_a
+
+
+@nb.njit(cache=True, inline="always")
+def _intervals_extra(n, k0, st, su, sv, stup, tup_mask, msk, ta, tb, ua, ub, va, vb, ln, mk):
+    """``_intervals`` with two-stage culling's time lines ``ln`` (t >= c + s u,
+    t <= c + s u, then the same in v; 001 §3.4) and Interleave UVT's tuple
+    mask ``mk`` (tuple indices ``stup[k & tup_mask]``)."""
+    lc, ls, hc, hs, mc, ms, kc, ks = ln[0], ln[1], ln[2], ln[3], ln[4], ln[5], ln[6], ln[7]
+    n_t = np.int32(0)
+    n_a = np.int32(0)
+    for i in range(n):
+        k = np.uint64(k0 + i)
+        t = st[k]
+        u = su[k]
+        v = sv[k]
+        in_t = (t >= ta) & (t <= tb)
+        in_a = in_t & (u >= ua) & (u <= ub) & (v >= va) & (v <= vb)
+        in_a = (in_a & (t >= lc + ls * u) & (t <= hc + hs * u) & (t >= mc + ms * v) & (t <= kc + ks * v)
+                & (((mk >> np.uint64(stup[k & tup_mask])) & np.uint64(1)) != 0))
+        msk[i] = in_a
+        n_t = np.int32(n_t + np.int32(in_t))
+        n_a = np.int32(n_a + np.int32(in_a))
+    return n_t, n_a
 
 
 @nb.njit(cache=True)
+def _tolerances(c, ta, tb, ua, ub, va, vb, x_max, y_max, eps):
+    """Per-edge pass-1 tolerances of a tile: minus min(eps, delta_k).
+
+    ``_decide`` re-tests in float64 every sample with an |e_k| <= eps, from
+    the same float32 vertices and (x, y). The float32 value of edge k differs
+    from that float64 value by at most 5.01 u (A_k |x| + B_k |y| + C_k),
+    u = 2^-24, where A_k, B_k, C_k are the sums of the magnitudes of the two
+    products forming the edge's coefficients a_k, b_k, c_k (3 roundings in
+    evaluating e, 2 in each coefficient; the float64 re-test's own error is
+    below 4 * 2^-53 of the same sum). Over a tile, |X|, |Y|, |W| of each
+    vertex are bounded from the intervals, and |x| <= x_max, |y| <= y_max.
+    delta_k is that bound with the factor 8 u, plus a tiny absolute term for
+    float32 underflow. A sample whose oriented float32 value is below
+    -delta_k is below 0 in float64 too, so ``_decide`` rejects it on either
+    path; below -eps, pass 1 always excluded it. Only which samples reach
+    ``_decide`` changes, never its answer.
+    """
+    T = max(abs(np.float64(ta)), abs(np.float64(tb)))
+    U = max(abs(np.float64(ua)), abs(np.float64(ub)))
+    V = max(abs(np.float64(va)), abs(np.float64(vb)))
+    mx0 = abs(np.float64(c[0])) + T * abs(np.float64(c[9])) + U * (abs(np.float64(c[18])) + T * abs(np.float64(c[24])))
+    mx1 = abs(np.float64(c[1])) + T * abs(np.float64(c[10])) + U * (abs(np.float64(c[19])) + T * abs(np.float64(c[25])))
+    mx2 = abs(np.float64(c[2])) + T * abs(np.float64(c[11])) + U * (abs(np.float64(c[20])) + T * abs(np.float64(c[26])))
+    my0 = abs(np.float64(c[3])) + T * abs(np.float64(c[12])) + V * (abs(np.float64(c[21])) + T * abs(np.float64(c[27])))
+    my1 = abs(np.float64(c[4])) + T * abs(np.float64(c[13])) + V * (abs(np.float64(c[22])) + T * abs(np.float64(c[28])))
+    my2 = abs(np.float64(c[5])) + T * abs(np.float64(c[14])) + V * (abs(np.float64(c[23])) + T * abs(np.float64(c[29])))
+    mw0 = abs(np.float64(c[6])) + T * abs(np.float64(c[15]))
+    mw1 = abs(np.float64(c[7])) + T * abs(np.float64(c[16]))
+    mw2 = abs(np.float64(c[8])) + T * abs(np.float64(c[17]))
+    # float32 vertex values may exceed these real-valued bounds by a few roundings
+    k = 8.0 * 2.0 ** -24 * (1.0 + 1e-5) ** 3
+    ab = 1e-30 * (1.0 + x_max + y_max)
+    d0 = k * ((my2 * mw1 + mw2 * my1) * x_max + (mw2 * mx1 + mx2 * mw1) * y_max + (mx2 * my1 + my2 * mx1)) + ab
+    d1 = k * ((my0 * mw2 + mw0 * my2) * x_max + (mw0 * mx2 + mx0 * mw2) * y_max + (mx0 * my2 + my0 * mx2)) + ab
+    d2 = k * ((my1 * mw0 + mw1 * my0) * x_max + (mw1 * mx0 + mx1 * mw0) * y_max + (mx1 * my0 + my1 * mx0)) + ab
+    # (a NaN or an infinite bound falls back to eps)
+    f0 = np.float32(d0) * np.float32(1.0001)
+    f1 = np.float32(d1) * np.float32(1.0001)
+    f2 = np.float32(d2) * np.float32(1.0001)
+    return (-(f0 if f0 < eps else eps), -(f1 if f1 < eps else eps), -(f2 if f2 < eps else eps))
+
+
+@nb.njit(cache=True, inline="always")
+def _decide_lanes(static, n, pt, pu, pv, px, py, c, z3, backface_culling, eps, pok, pz, pb0, pb1, pb2):
+    """Pass 2 on packed candidates: ``_decide`` for each (``inside_test``'s
+    arithmetic at the sample's (t, u, v), the float64 re-test near edges, the
+    top-left rule, depth), written branch-free so that numba vectorizes it:
+    both the float32 and the float64 edge values are computed and the one
+    ``_decide`` would use is selected; a zero denominator only yields a
+    value that ``pok`` discards (the kernel uses numpy's error model).
+    Outputs per candidate: covered (``pok``), depth, barycentrics.
+    With ``static`` (a literal) the vertices are the triangle's constants
+    (see ``_static_exact``), which numba hoists out of the loop."""
+    one = np.float32(1.0)
+    for q in range(n):
+        x = px[q]
+        y = py[q]
+        if static:
+            X0 = c[0]
+            Y0 = c[3]
+            W0 = c[6]
+            Z0 = z3[0]
+            X1 = c[1]
+            Y1 = c[4]
+            W1 = c[7]
+            Z1 = z3[1]
+            X2 = c[2]
+            Y2 = c[5]
+            W2 = c[8]
+            Z2 = z3[2]
+        else:
+            t = pt[q]
+            u = pu[q]
+            v = pv[q]
+            X0 = _at(c[0], c[9], c[18], c[24], t, u)
+            Y0 = _at(c[3], c[12], c[21], c[27], t, v)
+            W0 = c[6] + t * c[15]
+            Z0 = z3[0] + t * z3[3]
+            X1 = _at(c[1], c[10], c[19], c[25], t, u)
+            Y1 = _at(c[4], c[13], c[22], c[28], t, v)
+            W1 = c[7] + t * c[16]
+            Z1 = z3[1] + t * z3[4]
+            X2 = _at(c[2], c[11], c[20], c[26], t, u)
+            Y2 = _at(c[5], c[14], c[23], c[29], t, v)
+            W2 = c[8] + t * c[17]
+            Z2 = z3[2] + t * z3[5]
+        a0, b0, c0, a1, b1, c1, a2, b2, c2, D = _edges(X0, Y0, W0, X1, Y1, W1, X2, Y2, W2)
+        f0 = np.float64(a0 * x + b0 * y + c0)
+        f1 = np.float64(a1 * x + b1 * y + c1)
+        f2 = np.float64(a2 * x + b2 * y + c2)
+        near = (abs(f0) <= eps) | (abs(f1) <= eps) | (abs(f2) <= eps)
+        g0, g1, g2, g3, g4, g5, g6, g7, g8, _ = _edges(np.float64(X0), np.float64(Y0), np.float64(W0),
+                                                       np.float64(X1), np.float64(Y1), np.float64(W1),
+                                                       np.float64(X2), np.float64(Y2), np.float64(W2))
+        xd = np.float64(x)
+        yd = np.float64(y)
+        e0 = g0 * xd + g1 * yd + g2 if near else f0
+        e1 = g3 * xd + g4 * yd + g5 if near else f1
+        e2 = g6 * xd + g7 * yd + g8 if near else f2
+        fa0 = g0 if near else np.float64(a0)
+        fb0 = g1 if near else np.float64(b0)
+        fa1 = g3 if near else np.float64(a1)
+        fb1 = g4 if near else np.float64(b1)
+        fa2 = g6 if near else np.float64(a2)
+        fb2 = g7 if near else np.float64(b2)
+        flip = D < 0.0
+        ok = (D != 0.0) & ((backface_culling & flip) ^ True)
+        e0 = -e0 if flip else e0
+        e1 = -e1 if flip else e1
+        e2 = -e2 if flip else e2
+        fa0 = -fa0 if flip else fa0
+        fa1 = -fa1 if flip else fa1
+        fa2 = -fa2 if flip else fa2
+        fb0 = -fb0 if flip else fb0
+        fb1 = -fb1 if flip else fb1
+        fb2 = -fb2 if flip else fb2
+        ok = ok & (((e0 < 0.0) | (e1 < 0.0) | (e2 < 0.0)) ^ True)
+        ok = ok & ((e0 != 0.0) | (fa0 > 0.0) | ((fa0 == 0.0) & (fb0 > 0.0)))
+        ok = ok & ((e1 != 0.0) | (fa1 > 0.0) | ((fa1 == 0.0) & (fb1 > 0.0)))
+        ok = ok & ((e2 != 0.0) | (fa2 > 0.0) | ((fa2 == 0.0) & (fb2 > 0.0)))
+        tot = e0 + e1 + e2
+        den = e0 * W0 + e1 * W1 + e2 * W2
+        ok = ok & (tot != 0.0) & (den != 0.0)
+        z = np.float32((e0 * Z0 + e1 * Z1 + e2 * Z2) / den)
+        ok = ok & (z >= -1.0) & (z <= 1.0)
+        inv = 1.0 / tot
+        pok[q] = ok
+        pz[q] = z
+        pb0[q] = np.float32(e0 * inv)
+        pb1[q] = np.float32(e1 * inv)
+        pb2[q] = np.float32(e2 * inv)
+    return one
+
+
+# the set bytes of a uint64 holding eight 0/1 bytes, as an 8-bit pattern: (w * _BYTE_BITS) >> 56
+_BYTE_BITS = np.uint64(0x0102040810204080)
+# for each 8-bit pattern, the positions of its set bits (then padding) and their number
+_LUT_POS = np.array([[i for i in range(8) if p >> i & 1] + [0] * (8 - bin(p).count("1")) for p in range(256)],
+                    np.int32).ravel()
+_LUT_POP = np.array([bin(p).count("1") for p in range(256)], np.int32)
+
+
+# The passes' loops, compiled as functions of their own (the kernel calls
+# them once per tile): inlined into the kernel, its many live values cost
+# them registers; each dispatches on the kind so that every loop is
+# specialized.
+
+
+@nb.njit(cache=True)
+def _pass1_fused(kind, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2):
+    if kind == K_2D:
+        return _mark_range_fused(K_2D, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2)
+    return _mark_range_fused(K_5D, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2)
+
+
+@nb.njit(cache=True)
+def _pass1_packed(kind, n, ct, cu, cv, cx, cy, cand, c, n0, n1, n2):
+    if kind == K_2D:
+        return _mark_packed(K_2D, n, ct, cu, cv, cx, cy, cand, c, n0, n1, n2)
+    return _mark_packed(K_5D, n, ct, cu, cv, cx, cy, cand, c, n0, n1, n2)
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _pass2(static, n, pt, pu, pv, px, py, c, z3, backface_culling, eps, pok, pz, pb0, pb1, pb2):
+    if static:
+        _decide_lanes(True, n, pt, pu, pv, px, py, c, z3, backface_culling, eps, pok, pz, pb0, pb1, pb2)
+    else:
+        _decide_lanes(False, n, pt, pu, pv, px, py, c, z3, backface_culling, eps, pok, pz, pb0, pb1, pb2)
+
+
+@nb.njit(cache=True)
+def _flush(n, nb, nq, b_tri, b_static, b_c, b_z3, backface_culling, b_eps, pt, pu, pv, px, py, pok, pz, pb0, pb1,
+           pb2, poff, psid, ppix, rb_end, rb_slotted, rb_pix0, rb_area, rb_za, rb_zb, rb_nr, cnt, out_tri, out_pix,
+           out_sidx, out_z, out_b0, out_b1, out_b2, out_noread):
+    """Pass 2 on a batch (the candidates of consecutive records of one
+    triangle) and its covered samples out from record ``n``; returns the
+    next free record."""
+    nan = np.float32(np.nan)
+    zero = np.float32(0.0)
+    nq_pad = (nq + 7) // 8 * 8
+    for q in range(nq, nq_pad):  # NaN fails every test
+        pt[q] = nan
+        pu[q] = zero
+        pv[q] = zero
+        px[q] = nan
+        py[q] = nan
+    _pass2(b_static, nq_pad, pt, pu, pv, px, py, b_c, b_z3, backface_culling, b_eps, pok, pz, pb0, pb1, pb2)
+    # covered samples out, record by record, in pixel-major order (row,
+    # column, sample) as the tile's pixels are scanned; slot-major
+    # candidates go through a counting sort by pixel (stable: they
+    # come slot by slot)
+    q0 = 0
+    for r in range(nb):
+        q1 = rb_end[r]
+        za = rb_za[r]
+        zb = rb_zb[r]
+        nr = rb_nr[r]
+        pix0 = rb_pix0[r]
+        if rb_slotted[r]:
+            area = rb_area[r]
+            for p_ in range(area):
+                cnt[p_] = 0
+            for q in range(q0, q1):
+                uq = np.uint64(q)
+                if pok[uq]:
+                    cnt[np.uint64(ppix[uq])] += 1
+            acc = n
+            for p_ in range(area):
+                c_ = cnt[p_]
+                cnt[p_] = acc
+                acc += c_
+            for q in range(q0, q1):
+                uq = np.uint64(q)
+                if pok[uq]:
+                    kp = np.uint64(ppix[uq])
+                    o = np.uint64(cnt[kp])
+                    cnt[kp] = o + 1
+                    out_tri[o] = b_tri
+                    out_pix[o] = pix0 + poff[uq]
+                    out_sidx[o] = psid[uq]
+                    # the true depth lies in z^; clamping removes float32
+                    # rounding so z-cull decisions made on z^ agree with the ROP's
+                    out_z[o] = min(max(pz[uq], za), zb)
+                    out_b0[o] = pb0[uq]
+                    out_b1[o] = pb1[uq]
+                    out_b2[o] = pb2[uq]
+                    out_noread[o] = nr
+            n = acc
+        else:
+            for q in range(q0, q1):
+                uq = np.uint64(q)
+                if pok[uq]:
+                    o = np.uint64(n)
+                    out_tri[o] = b_tri
+                    out_pix[o] = pix0 + poff[uq]
+                    out_sidx[o] = psid[uq]
+                    out_z[o] = min(max(pz[uq], za), zb)
+                    out_b0[o] = pb0[uq]
+                    out_b1[o] = pb1[uq]
+                    out_b2[o] = pb2[uq]
+                    out_noread[o] = nr
+                    n += 1
+        q0 = q1
+    return n
+
+
+@nb.njit(cache=True)
+def _intervals_fn(n, k0, st, su, sv, msk, ta, tb, ua, ub, va, vb):
+    return _intervals(n, k0, st, su, sv, msk, ta, tb, ua, ub, va, vb)
+
+
+@nb.njit(cache=True)
+def _intervals_extra_fn(n, k0, st, su, sv, stup, tup_mask, msk, ta, tb, ua, ub, va, vb, ln, mk):
+    return _intervals_extra(n, k0, st, su, sv, stup, tup_mask, msk, ta, tb, ua, ub, va, vb, ln, mk)
+
+
+@nb.njit(cache=True)
+def _constants(tc):
+    """The triangle's float32 constants as a tuple (layout: see ``_keep``)."""
+    return (tc[0], tc[1], tc[2], tc[3], tc[4], tc[5], tc[6], tc[7], tc[8], tc[9], tc[10], tc[11], tc[12], tc[13],
+            tc[14], tc[15], tc[16], tc[17], tc[18], tc[19], tc[20], tc[21], tc[22], tc[23], tc[24], tc[25], tc[26],
+            tc[27], tc[28], tc[29], tc[30], tc[31], tc[32], tc[33], tc[34], tc[35], tc[36], tc[37], tc[38], tc[39])
+
+
+@nb.njit(cache=True)
+def _static_exact(p0, dp, l0, dl, tri):
+    """Whether a static, pinhole triangle's vertices at any finite (t, u, v)
+    are exactly its shutter-open vertices p0, so that pass 2 may hoist them:
+    its motion and lens terms are +-0, so t * d and u * (l0 + t * dl) are +-0
+    too, and adding +-0 leaves every value unchanged but a zero (whose sign
+    it may flip): no coordinate of p0 may be zero."""
+    for k in range(3):
+        for c in range(4):
+            if p0[tri, k, c] == 0 or dp[tri, k, c] != 0:
+                return False
+        for c in range(2):
+            if l0[tri, k, c] != 0 or dl[tri, k, c] != 0:
+                return False
+    return True
+
+
+@nb.njit(cache=True)
+def _positions(words, n_words, out):
+    """The positions (from 0) of the set bytes among the 0/1 bytes viewed as
+    ``words[:n_words]``, into ``out`` (which needs 8 entries of slack); returns
+    their number. Branch-free within a word."""
+    m = np.uint64(0)
+    for w in range(n_words):
+        word = words[np.uint64(w)]
+        if word != 0:
+            p = ((word * _BYTE_BITS) >> np.uint64(56)) * np.uint64(8)
+            b = np.int32(w * 8)
+            for i in range(8):
+                out[m + np.uint64(i)] = b + _LUT_POS[p + np.uint64(i)]
+            m += np.uint64(_LUT_POP[p >> np.uint64(3)])
+    return np.int64(m)
+
+
+@nb.njit(cache=True)
+def _tile_major(width, height, spp, tile_size, slot_major, x, y, u, v, t, tup, ax, ay, tu, tv, tt, ttup, slot_lo,
+                slot_hi):
+    """The samples in one of the sample tester's tile-major orders.
+
+    Every tile's samples become contiguous, from ``base = (ty * tile_size *
+    width + tx * tile_size * h) * spp`` (w x h: the tile's size, smaller at
+    the right and bottom edges). Within the tile, pixel (r, c) sample s (its
+    index in the pixel's t-ordered samples) goes to ``(r * w + c) * spp + s``
+    (pixel-major), or with ``slot_major`` to ``s * w * h + r * w + c``, so
+    that a range of slots is a contiguous run. ``ax, ay`` are absolute: the
+    pixel's float32 coordinates plus the offsets, exactly as the tester adds
+    them. ``slot_lo[s], slot_hi[s]``: the smallest and largest t of slot s
+    over all pixels (NaN ignored), so a tile's t^ selects a contiguous range
+    of slots that holds every sample with t in t^.
+    """
+    for s in range(spp):
+        slot_lo[s] = np.inf
+        slot_hi[s] = -np.inf
+    has_tup = tup.shape[0] == x.shape[0]
+    for py in range(height):
+        ty = py // tile_size
+        r = py - ty * tile_size
+        h = min(tile_size, height - ty * tile_size)
+        for px in range(width):
+            tx = px // tile_size
+            cl = px - tx * tile_size
+            w = min(tile_size, width - tx * tile_size)
+            base = (ty * tile_size * width + tx * tile_size * h) * spp
+            if slot_major:
+                base += r * w + cl
+                step = w * h
+            else:
+                base += (r * w + cl) * spp
+                step = 1
+            src = (py * width + px) * spp
+            for s in range(spp):
+                k = base + s * step
+                ax[k] = np.float32(px) + x[src + s]
+                ay[k] = np.float32(py) + y[src + s]
+                tu[k] = u[src + s]
+                tv[k] = v[src + s]
+                tk = t[src + s]
+                tt[k] = tk
+                if has_tup:
+                    ttup[k] = tup[src + s]
+                if tk < slot_lo[s]:
+                    slot_lo[s] = tk
+                if tk > slot_hi[s]:
+                    slot_hi[s] = tk
+
+
+@nb.njit(cache=True, error_model="numpy")
 def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, noread_in,
-                       lines, masks, tile_size, width, height, spp, sx, sy, su, sv, st, stup,
+                       lines, masks, tile_size, width, height, spp, sx, sy, su, sv, st, stup, slot_lo, slot_hi,
+                       uv_range, xy_max,
                        p0, dp, l0, dl, edge_eps, backface_culling, specialize,
                        out_tri, out_pix, out_sidx, out_z, out_b0, out_b1, out_b2, out_noread, ops, events):
     """Interval lookup on the tile's samples and exact inside tests (002 §5; 004 eq. 3, 10-13).
 
-    Per tile row, a branch-free first pass over the row's contiguous samples
-    computes the interval test (t in t^, u in u^, v in v^) and the float32
-    edge functions, and keeps as candidates the samples in the intervals that
-    no edge excludes by more than the float32 error bound; numba vectorizes
-    it. The second pass runs the full decision (``_decide``: float64 re-test
-    near edges, top-left ties, depth) on the candidates only. A static,
-    pinhole triangle gets its edge functions once per tile (a 2D test per
-    sample); a moving or defocused one computes its vertices at each sample's
-    (t, u, v). All paths compute bit-identical vertex values, so neighbours on
-    different paths stay watertight. The modelled hardware looks the t-range
-    up with a binary search on the t-ordered samples; its compares are
-    counted as such.
+    The samples (x, y, u, v, t, tuple index) come in two tile-major orders
+    (``_tile_major``), one after the other in each array: pixel-major, then
+    slot-major within each tile. Per (triangle, tile) record:
+
+    * the tile's t^ selects the slots that can hold a t in t^ (from the
+      slots' t ranges over the frame, ``slot_lo``, ``slot_hi``): all of them
+      (then the pixel-major order is used), or a range that is a contiguous
+      run in the slot-major order;
+    * the interval test (t in t^, u in u^, v in v^ and, with two-stage
+      culling or Interleave UVT, between the time lines and in the tuple
+      mask) and pass 1: the float32 edge functions, keeping as candidates
+      the samples in the intervals that no edge excludes for certain (within
+      a per-edge tolerance bounding float32 rounding, ``_tolerances``). Both
+      in one pass over the run when u^ and v^ hold most samples
+      (``uv_range``: the samples' u and v range), else the interval test
+      first and pass 1 on the samples in the intervals, packed;
+    * pass 2, the full decision (``_decide_lanes``: ``_decide``'s float64
+      re-test near edges, top-left ties, depth), on the packed candidates of
+      consecutive records of one triangle at once (``_flush``), and the
+      covered samples out in each record's pixel-major order.
+
+    The passes are branch-free loops that numba vectorizes. A static,
+    pinhole triangle's edge functions are set up once (a 2D test per sample
+    in pass 1); other triangles' vertices are computed at each sample's
+    (t, u, v). Results are bit-identical on every path (pass 2 evaluates
+    exactly what ``_decide`` does, from the same vertices) and neighbours
+    stay watertight. The modelled hardware looks the t-range up with a
+    binary search on the t-ordered samples; its compares are counted as
+    such. ``xy_max`` bounds |x| and |y| of every sample's offset in its
+    pixel.
     """
-    n = 0
+    n_frame = width * height * spp  # the slot-major order's start
+    u_min, u_max, v_min, v_max = uv_range[0], uv_range[1], uv_range[2], uv_range[3]
+    none = tri_ids.shape[0] * 0  # 0, not a literal: the callees compile once
+    n = none
     tested = 0
     by_dims = np.zeros(4, np.int64)
     in_range = 0
     pixels = 0
     searches = 0
-    row_len = tile_size * spp
-    cand = np.zeros(row_len, np.uint8)
-    colf = np.empty(row_len, np.float32)  # pixel column offset of each sample in a tile row
-    for j in range(row_len):
-        colf[j] = np.float32(j // spp)
     one = np.float32(1.0)
-    tc = np.empty(40, np.float32)  # the current triangle's constants
-    iv = np.empty(6, np.float32)  # the current tile's intervals
+    nan = np.float32(np.nan)
+    zero = np.float32(0.0)
+    tile_len = tile_size * tile_size * spp
+    pad = 32  # packed arrays end on whole vector-loop iterations
+    cap = (tile_len + pad + 7) // 8 * 8
+    msk = np.zeros(cap, np.uint8)  # in the intervals, per sample of the tile's run
+    mskw = msk.view(np.uint64)
+    cand = np.zeros(cap, np.uint8)  # candidates (fused pass)
+    candw = cand.view(np.uint64)
+    pos = np.empty(cap + 8, np.int32)  # positions of set bytes
+    ct = np.empty(cap, np.float32)  # samples in the intervals packed for pass 1
+    cu = np.empty(cap, np.float32)
+    cv = np.empty(cap, np.float32)
+    cx = np.empty(cap, np.float32)
+    cy = np.empty(cap, np.float32)
+    cq = np.empty(cap, np.int32)  # their position in the tile
+    cc = np.zeros(cap, np.uint8)  # candidates among them
+    ccw = cc.view(np.uint64)
+    # pass 2 runs on the candidates of consecutive records of one triangle
+    # at once (a batch); their records' details wait in the rb_ arrays
+    bcap = max(cap, 8192)
+    pt = np.empty(bcap + 8, np.float32)  # candidates packed for pass 2
+    pu = np.empty(bcap + 8, np.float32)
+    pv = np.empty(bcap + 8, np.float32)
+    px = np.empty(bcap + 8, np.float32)
+    py = np.empty(bcap + 8, np.float32)
+    poff = np.empty(bcap + 8, np.int32)  # their pixel's offset r * width + c from the tile's first pixel,
+    psid = np.empty(bcap + 8, np.int32)  # sample index and
+    ppix = np.empty(bcap + 8, np.int32)  # pixel in the tile r * w + c (the tables change with the tile's size)
+    pok = np.empty(bcap + 8, np.bool_)  # pass 2's results
+    pz = np.empty(bcap + 8, np.float32)
+    pb0 = np.empty(bcap + 8, np.float32)
+    pb1 = np.empty(bcap + 8, np.float32)
+    pb2 = np.empty(bcap + 8, np.float32)
+    rb_end = np.empty(bcap, np.int64)  # per record of the batch: end of its candidates,
+    rb_slotted = np.empty(bcap, np.bool_)  # slot-major or not,
+    rb_pix0 = np.empty(bcap, np.int64)  # first pixel, pixels in the tile,
+    rb_area = np.empty(bcap, np.int64)
+    rb_za = np.empty(bcap, np.float32)  # depth range, noread flag
+    rb_zb = np.empty(bcap, np.float32)
+    rb_nr = np.empty(bcap, np.bool_)
+    nb = none  # records in the batch
+    nq = none  # candidates in the batch
+    b_tri = none - 1
+    b_static = none > 0  # False
+    # per position in a w x h tile, pixel-major (p) and slot-major (s): the
+    # pixel's offset r * width + c in the frame, the sample index, the pixel
+    # r * w + c in the tile
+    off_p = np.empty(tile_len, np.int32)
+    sid_p = np.empty(tile_len, np.int32)
+    off_s = np.empty(tile_len, np.int32)
+    sid_s = np.empty(tile_len, np.int32)
+    pix_s = np.empty(tile_len, np.int32)
+    cnt = np.empty(tile_size * tile_size, np.int64)  # covered samples per pixel of the tile
+    cur_w = -1
+    cur_h = -1
+    tc = np.zeros(46, np.float32)  # the current triangle's constants (see _keep; Z at 40..45)
     ln = np.empty(8, np.float32)  # the current tile's time lines (two-stage culling)
     has_lines = lines.shape[0] == tri_ids.shape[0]
     has_masks = masks.shape[0] == tri_ids.shape[0]
     extra_tests = 0
-    for i in range(tri_ids.shape[0]):
+    # without Interleave UVT masks: every tuple bit set, tuple index 0
+    mk = np.uint64(0xFFFFFFFFFFFFFFFF)
+    tup_mask = np.uint64(0xFFFFFFFFFFFFFFFF) if has_masks else np.uint64(0)
+    prev = -1
+    dims = 0
+    kind = K_5D
+    static = b_static
+    c = _constants(tc)
+    z3 = (tc[40], tc[41], tc[42], tc[43], tc[44], tc[45])
+    b_c = c
+    b_z3 = z3
+    b_eps = np.float32(0.0)
+    n_rec = tri_ids.shape[0]
+    for i in range(n_rec + 1):
+        # ---- pass 2 on the batch: when the triangle changes, before the
+        # buffers could overflow, and at the end ------------------------------
+        if nb > 0 and (i == n_rec or tri_ids[i] != b_tri or nq + tile_len > bcap):
+            n = _flush(n, nb, nq, b_tri, b_static, b_c, b_z3, backface_culling, b_eps, pt, pu, pv, px, py, pok, pz,
+                       pb0, pb1, pb2, poff, psid, ppix, rb_end, rb_slotted, rb_pix0, rb_area, rb_za, rb_zb, rb_nr,
+                       cnt, out_tri, out_pix, out_sidx, out_z, out_b0, out_b1, out_b2, out_noread)
+            nb = 0
+            nq = 0
+        if i == n_rec:
+            break
         tri = tri_ids[i]
+        if tri != prev:
+            # the triangle's constants; consecutive records usually share a triangle
+            prev = tri
+            for k_ in range(3):
+                tc[k_] = p0[tri, k_, 0]
+                tc[3 + k_] = p0[tri, k_, 1]
+                tc[6 + k_] = p0[tri, k_, 3]
+                tc[9 + k_] = dp[tri, k_, 0]
+                tc[12 + k_] = dp[tri, k_, 1]
+                tc[15 + k_] = dp[tri, k_, 3]
+                tc[18 + k_] = l0[tri, k_, 0]
+                tc[21 + k_] = l0[tri, k_, 1]
+                tc[24 + k_] = dl[tri, k_, 0]
+                tc[27 + k_] = dl[tri, k_, 1]
+                tc[40 + k_] = p0[tri, k_, 2]
+                tc[43 + k_] = dp[tri, k_, 2]
+            moving = False
+            for k_ in range(9, 18):
+                moving = moving or tc[k_] != 0
+            for k_ in range(24, 30):
+                moving = moving or tc[k_] != 0
+            for k_ in range(43, 46):
+                moving = moving or tc[k_] != 0
+            lens = False
+            for k_ in range(18, 24):
+                lens = lens or tc[k_] != 0
+            # the dimensions this triangle uses: 0 = 2D, 1 = xyt, 2 = xyuv, 3 = xyuvt
+            dims = (1 if moving else 0) + (2 if lens else 0)
+            kind = K_2D if dims == 0 and specialize else K_5D
+            # 2D path: vertices and edges once per tile (t, u, v do not matter)
+            sa0, sb0, sc0, sa1, sb1, sc1, sa2, sb2, sc2, sD = _edges(tc[0], tc[3], tc[6], tc[1], tc[4], tc[7],
+                                                                     tc[2], tc[5], tc[8])
+            tc[30], tc[31], tc[32], tc[33], tc[34], tc[35], tc[36], tc[37], tc[38] = (sa0, sb0, sc0, sa1, sb1, sc1,
+                                                                                      sa2, sb2, sc2)
+            tc[39] = one if sD > 0 else -one
+            static = kind == K_2D and _static_exact(p0, dp, l0, dl, tri)
+            c = _constants(tc)
+            z3 = (tc[40], tc[41], tc[42], tc[43], tc[44], tc[45])
+        general = dims != 0 or not specialize
+        # two-stage lines and tuple masks matter only where t, u or v do
+        extra = (has_lines or has_masks) and general
         ta = _f32_at_least(t_lo[i])
         tb = _f32_at_most(t_hi[i])
         ua = _f32_at_least(u_lo[i])
         ub = _f32_at_most(u_hi[i])
         va = _f32_at_least(v_lo[i])
         vb = _f32_at_most(v_hi[i])
-        za = np.float32(z_lo[i])
-        zb = np.float32(z_hi[i])
-        eps = edge_eps[tri]
-        neps = -eps
-        # the triangle's constants, loaded once per tile
-        X00, X01, X02 = p0[tri, 0, 0], p0[tri, 1, 0], p0[tri, 2, 0]
-        Y00, Y01, Y02 = p0[tri, 0, 1], p0[tri, 1, 1], p0[tri, 2, 1]
-        Z00, Z01, Z02 = p0[tri, 0, 2], p0[tri, 1, 2], p0[tri, 2, 2]
-        W00, W01, W02 = p0[tri, 0, 3], p0[tri, 1, 3], p0[tri, 2, 3]
-        dX0, dX1, dX2 = dp[tri, 0, 0], dp[tri, 1, 0], dp[tri, 2, 0]
-        dY0, dY1, dY2 = dp[tri, 0, 1], dp[tri, 1, 1], dp[tri, 2, 1]
-        dZ0, dZ1, dZ2 = dp[tri, 0, 2], dp[tri, 1, 2], dp[tri, 2, 2]
-        dW0, dW1, dW2 = dp[tri, 0, 3], dp[tri, 1, 3], dp[tri, 2, 3]
-        LX0, LX1, LX2 = l0[tri, 0, 0], l0[tri, 1, 0], l0[tri, 2, 0]
-        LY0, LY1, LY2 = l0[tri, 0, 1], l0[tri, 1, 1], l0[tri, 2, 1]
-        dLX0, dLX1, dLX2 = dl[tri, 0, 0], dl[tri, 1, 0], dl[tri, 2, 0]
-        dLY0, dLY1, dLY2 = dl[tri, 0, 1], dl[tri, 1, 1], dl[tri, 2, 1]
-        moving = (dX0 != 0 or dX1 != 0 or dX2 != 0 or dY0 != 0 or dY1 != 0 or dY2 != 0 or dZ0 != 0
-                  or dZ1 != 0 or dZ2 != 0 or dW0 != 0 or dW1 != 0 or dW2 != 0 or dLX0 != 0 or dLX1 != 0
-                  or dLX2 != 0 or dLY0 != 0 or dLY1 != 0 or dLY2 != 0)
-        lens = LX0 != 0 or LX1 != 0 or LX2 != 0 or LY0 != 0 or LY1 != 0 or LY2 != 0
-        # the dimensions this triangle uses: 0 = 2D, 1 = xyt, 2 = xyuv, 3 = xyuvt
-        dims = (1 if moving else 0) + (2 if lens else 0)
-        general = dims != 0 or not specialize
-        # two-stage lines and tuple masks matter only where t, u or v do
-        extra = (has_lines or has_masks) and general
-        mk = masks[i] if has_masks else np.uint64(0xFFFFFFFFFFFFFFFF)
-        if has_lines:
-            for c_ in range(8):
-                ln[c_] = lines[i, c_]
-        else:
-            ln[0], ln[1], ln[2], ln[3], ln[4], ln[5], ln[6], ln[7] = 0, 0, 1, 0, 0, 0, 1, 0
-        # 2D path: vertices and edges once per tile (t, u, v do not matter)
-        sa0, sb0, sc0, sa1, sb1, sc1, sa2, sb2, sc2, sD = _edges(X00, Y00, W00, X01, Y01, W01, X02, Y02, W02)
-        for c_, val in enumerate((X00, X01, X02, Y00, Y01, Y02, W00, W01, W02, dX0, dX1, dX2, dY0, dY1, dY2,
-                                  dW0, dW1, dW2, LX0, LX1, LX2, LY0, LY1, LY2, dLX0, dLX1, dLX2, dLY0, dLY1,
-                                  dLY2, sa0, sb0, sc0, sa1, sb1, sc1, sa2, sb2, sc2)):
-            tc[c_] = val
-        tc[39] = one if sD > 0 else -one
-        iv[0], iv[1], iv[2], iv[3], iv[4], iv[5] = ta, tb, ua, ub, va, vb
+        if extra:
+            if has_masks:
+                mk = masks[i]
+            if has_lines:
+                for c_ in range(8):
+                    ln[c_] = lines[i, c_]
+            else:
+                ln[0], ln[1], ln[2], ln[3], ln[4], ln[5], ln[6], ln[7] = 0, 0, 1, 0, 0, 0, 1, 0
         full_t = t_lo[i] <= 0.0 and t_hi[i] >= 1.0
         px0 = tile_x[i] * tile_size
         px1 = min(px0 + tile_size, width)
-        fpx0 = np.float32(px0)
-        length = (px1 - px0) * spp
-        for py in range(tile_y[i] * tile_size, min((tile_y[i] + 1) * tile_size, height)):
-            start = (py * width + px0) * spp
-            fy = np.float32(py)
-            pixels += px1 - px0
-            if not full_t:
-                searches += px1 - px0
-            row_tested = np.int32(0)  # int32: an int64 counter halves the vector width
-            row_range = np.int32(0)
-            row_cand = np.int32(0)
-            # ---- pass 1: interval and float32 edge tests, marking candidates --
-            rt = st[start:start + length]
-            ru = su[start:start + length]
-            rv = sv[start:start + length]
-            rx = sx[start:start + length]
-            ry = sy[start:start + length]
-            # one branch-free loop over the whole row, which numba vectorizes: on a
-            # CPU that beats a per-pixel range lookup even for narrow t^ (the
-            # modelled hardware's lookups are still counted as such)
-            rtup = stup[start:start + length] if has_masks else stup
-            row_tested, row_range, row_cand = _mark(0, length, general, extra, rt, ru, rv, rx, ry, rtup, colf,
-                                                    cand, fpx0, fy, iv, ln, mk, neps, tc)
-            if extra:
-                extra_tests += row_range
-            tested += row_tested
-            by_dims[dims if specialize else 3] += row_tested
-            in_range += row_range
-            if row_cand == 0:
+        py0 = tile_y[i] * tile_size
+        py1 = min(py0 + tile_size, height)
+        w_t = px1 - px0
+        h_t = py1 - py0
+        area = w_t * h_t
+        pixels += area
+        if not full_t:
+            searches += area
+        if w_t != cur_w or h_t != cur_h:
+            cur_w = w_t
+            cur_h = h_t
+            for r_ in range(h_t):
+                for c_ in range(w_t):
+                    for s_ in range(spp):
+                        q_ = (r_ * w_t + c_) * spp + s_
+                        off_p[q_] = r_ * width + c_
+                        sid_p[q_] = s_
+                        q_ = s_ * area + r_ * w_t + c_
+                        off_s[q_] = r_ * width + c_
+                        sid_s[q_] = s_
+                        pix_s[q_] = r_ * w_t + c_
+        # ---- the slots that can hold a t in t^, then the interval test ------
+        # (slot_lo, slot_hi do not decrease: the slots below s0 end before t^,
+        # those from s1 on start after it)
+        s0 = 0
+        s1 = 0
+        for s_ in range(spp):
+            s0 += slot_hi[s_] < ta
+            s1 += slot_lo[s_] <= tb
+        if s1 <= s0:
+            continue
+        k0 = (tile_y[i] * tile_size * width + px0 * h_t) * spp
+        slotted = s1 - s0 < spp
+        qa = s0 * area if slotted else 0
+        if slotted:
+            k0 += n_frame + qa
+        nlen = (s1 - s0) * area
+        n_words = (nlen + 7) // 8
+        # the share of the samples u^ and v^ hold, if u and v are spread evenly
+        fu = (min(ub, u_max) - max(ua, u_min)) / (u_max - u_min) if u_max > u_min else 1.0
+        fv = (min(vb, v_max) - max(va, v_min)) / (v_max - v_min) if v_max > v_min else 1.0
+        fused = not extra and fu * fv >= 0.5
+        n0, n1, n2 = _tolerances(c, ta, tb, ua, ub, va, vb, np.float64(px1) + xy_max, np.float64(py1) + xy_max,
+                                 edge_eps[tri])
+        if fused:
+            tile_t, tile_all, nc = _pass1_fused(kind, nlen, k0, st, su, sv, sx, sy, cand, ta, tb, ua, ub, va, vb, c,
+                                                n0, n1, n2)
+        elif extra:
+            tile_t, tile_all = _intervals_extra_fn(nlen, k0, st, su, sv, stup, tup_mask, msk, ta, tb, ua, ub, va, vb,
+                                                   ln, mk)
+            extra_tests += tile_t
+        else:
+            tile_t, tile_all = _intervals_fn(nlen, k0, st, su, sv, msk, ta, tb, ua, ub, va, vb)
+        tested += tile_all
+        by_dims[dims if specialize else 3] += tile_all
+        in_range += tile_t
+        if tile_all == 0:
+            continue
+        # ---- pass 1: the candidates, appended to the batch (pt..ppix) -------
+        base = nq
+        if fused:
+            if nc == 0:
                 continue
-            # ---- pass 2: the full decision on the candidates ----------------
-            for j in range(length):
-                if cand[j] == 0:
-                    continue
-                k = start + j
-                t = st[k]
-                u = su[k]
-                v = sv[k]
-                x = (fpx0 + colf[j]) + sx[k]
-                y = fy + sy[k]
-                X0 = _at(X00, dX0, LX0, dLX0, t, u)
-                Y0 = _at(Y00, dY0, LY0, dLY0, t, v)
-                W0 = W00 + t * dW0
-                Z0 = Z00 + t * dZ0
-                X1 = _at(X01, dX1, LX1, dLX1, t, u)
-                Y1 = _at(Y01, dY1, LY1, dLY1, t, v)
-                W1 = W01 + t * dW1
-                Z1 = Z01 + t * dZ1
-                X2 = _at(X02, dX2, LX2, dLX2, t, u)
-                Y2 = _at(Y02, dY2, LY2, dLY2, t, v)
-                W2 = W02 + t * dW2
-                Z2 = Z02 + t * dZ2
-                a0, b0, c0, a1, b1, c1, a2, b2, c2, D = _edges(X0, Y0, W0, X1, Y1, W1, X2, Y2, W2)
-                ok, r0, r1, r2, z = _decide(a0, b0, c0, a1, b1, c1, a2, b2, c2, D, X0, Y0, W0, Z0, X1, Y1,
-                                            W1, Z1, X2, Y2, W2, Z2, x, y, backface_culling, eps)
-                if ok:
-                    pix = py * width + px0 + j // spp
-                    # the true depth lies in z^; clamping removes float32 rounding
-                    # so z-cull decisions made on z^ agree with the ROP's
-                    out_tri[n] = tri
-                    out_pix[n] = pix
-                    out_sidx[n] = j % spp
-                    out_z[n] = min(max(z, za), zb)
-                    out_b0[n] = r0
-                    out_b1[n] = r1
-                    out_b2[n] = r2
-                    out_noread[n] = noread_in[i]
-                    n += 1
+            for j in range(nlen, n_words * 8):
+                cand[j] = 0
+            m = _positions(candw, n_words, pos)
+            for q in range(m):
+                j = pos[np.uint64(q)]
+                k = np.uint64(k0 + j)
+                uq = np.uint64(base + q)
+                pt[uq] = st[k]
+                pu[uq] = su[k]
+                pv[uq] = sv[k]
+                px[uq] = sx[k]
+                py[uq] = sy[k]
+                q_ = qa + j
+                poff[uq] = off_s[q_] if slotted else off_p[q_]
+                psid[uq] = sid_s[q_] if slotted else sid_p[q_]
+                ppix[uq] = pix_s[q_]
+        else:
+            # the interval test first, then pass 1 on the samples in the intervals, packed
+            for j in range(nlen, n_words * 8):
+                msk[j] = 0
+            m = _positions(mskw, n_words, pos)
+            for q in range(m):
+                uq = np.uint64(q)
+                j = pos[uq]
+                k = np.uint64(k0 + j)
+                ct[uq] = st[k]
+                cu[uq] = su[k]
+                cv[uq] = sv[k]
+                cx[uq] = sx[k]
+                cy[uq] = sy[k]
+                cq[uq] = qa + j
+            m_pad = (m + pad - 1) // pad * pad
+            for q in range(m, m_pad):  # NaN fails every test
+                ct[q] = nan
+                cu[q] = zero
+                cv[q] = zero
+                cx[q] = nan
+                cy[q] = nan
+            nc = _pass1_packed(kind, m_pad, ct, cu, cv, cx, cy, cc, c, n0, n1, n2)
+            if nc == 0:
+                continue
+            m = _positions(ccw, m_pad // 8, pos)
+            for q in range(m):
+                s_ = np.uint64(pos[np.uint64(q)])
+                uq = np.uint64(base + q)
+                pt[uq] = ct[s_]
+                pu[uq] = cu[s_]
+                pv[uq] = cv[s_]
+                px[uq] = cx[s_]
+                py[uq] = cy[s_]
+                q_ = cq[s_]
+                poff[uq] = off_s[q_] if slotted else off_p[q_]
+                psid[uq] = sid_s[q_] if slotted else sid_p[q_]
+                ppix[uq] = pix_s[q_]
+        # ---- the record joins the batch -------------------------------------
+        finite = (np.isfinite(ta) and np.isfinite(tb) and np.isfinite(ua) and np.isfinite(ub) and np.isfinite(va)
+                  and np.isfinite(vb))
+        if nb == 0:
+            b_tri = tri
+            b_static = static and finite
+            b_c = c
+            b_z3 = z3
+            b_eps = edge_eps[tri]
+        else:
+            b_static = b_static and finite
+        nq = base + m
+        rb_end[nb] = nq
+        rb_slotted[nb] = slotted
+        rb_pix0[nb] = py0 * width + px0
+        rb_area[nb] = area
+        rb_za[nb] = np.float32(z_lo[i])
+        rb_zb[nb] = np.float32(z_hi[i])
+        rb_nr[nb] = noread_in[i]
+        nb += 1
     log_spp = 1
     while (1 << log_spp) <= spp:
         log_spp += 1
@@ -431,7 +986,7 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
 
 _NO_LINES = np.zeros((0, 8), np.float32)
 _NO_MASKS = np.zeros(0, np.uint64)
-_NO_TUPLES = np.zeros(1, np.int8)
+_NO_TUPLES = np.zeros(0, np.int8)
 
 
 class SampleTester:
@@ -447,6 +1002,48 @@ class SampleTester:
         self.samples = samples
         self.tile_size = tile_size
         self.backface_culling = backface_culling
+        self._layout = None
+
+    def layout(self) -> tuple:
+        """The samples in the kernel's two tile-major orders (``_tile_major``),
+        pixel-major then slot-major in each array, built on first use:
+        (x, y, u, v, t, tuple index, slot_lo, slot_hi, uv_range, xy_max)."""
+        if getattr(self, "_layout", None) is None:
+            s = self.samples
+            n = len(s.t)
+            if s.width * s.height * s.spp != n:
+                raise ValueError("the sample tester needs the samples of the whole frame")
+            has_tup = s.tup is not None
+            lo = np.empty(s.spp, np.float32)
+            hi = np.empty(s.spp, np.float32)
+            arrays = tuple(np.empty(2 * n, np.float32) for _ in range(5)) + (np.empty(2 * n if has_tup else 1,
+                                                                                     np.int8),)
+            for half, slot_major in ((slice(0, n), False), (slice(n, 2 * n), True)):
+                _tile_major(s.width, s.height, s.spp, self.tile_size, slot_major, s.x, s.y, s.u, s.v, s.t,
+                            s.tup if has_tup else _NO_TUPLES, *(a[half] for a in arrays[:5]),
+                            arrays[5][half] if has_tup else arrays[5], lo, hi)
+            if not (np.all(np.diff(lo) >= 0) and np.all(np.diff(hi) >= 0)):
+                lo[:] = -np.inf  # slots not in t order: every record takes them all
+                hi[:] = np.inf
+            m = max(float(np.abs(s.x).max(initial=0.0)), float(np.abs(s.y).max(initial=0.0)))
+            xy_max = m * (1.0 + 1e-6) if np.isfinite(m) else np.inf
+            uv = np.array([np.nanmin(s.u, initial=0.0), np.nanmax(s.u, initial=0.0), np.nanmin(s.v, initial=0.0),
+                           np.nanmax(s.v, initial=0.0)], np.float64) if n else np.zeros(4)
+            self._layout = arrays + (lo, hi, uv, xy_max)
+        return self._layout
+
+    def kernel_args(self, tiles: dict[str, np.ndarray], out: dict[str, np.ndarray], ops: np.ndarray,
+                    events: np.ndarray) -> tuple:
+        """The arguments of ``sample_test_kernel`` for a batch of tile records."""
+        s = self.samples
+        t = self.table
+        return (tiles["tri"], tiles["tx"], tiles["ty"], tiles["t_lo"], tiles["t_hi"],
+                tiles["u_lo"], tiles["u_hi"], tiles["v_lo"], tiles["v_hi"], tiles["z_lo"],
+                tiles["z_hi"], tiles["noread"], tiles.get("lines", _NO_LINES), tiles.get("mask", _NO_MASKS),
+                self.tile_size, s.width, s.height, s.spp, *self.layout(),
+                t.p0_32, t.dp_32, t.l0_32, t.dl_32, t.edge_eps, self.backface_culling, self.specialize,
+                out["tri"], out["pix"], out["sidx"], out["z"], out["b0"], out["b1"], out["b2"], out["noread"],
+                ops, events)
 
     def run(self, tiles: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
         s = self.samples
@@ -460,17 +1057,7 @@ class SampleTester:
         }
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
-        t = self.table
-        m = sample_test_kernel(tiles["tri"], tiles["tx"], tiles["ty"], tiles["t_lo"], tiles["t_hi"],
-                               tiles["u_lo"], tiles["u_hi"], tiles["v_lo"], tiles["v_hi"], tiles["z_lo"],
-                               tiles["z_hi"], tiles["noread"], tiles.get("lines", _NO_LINES),
-                               tiles.get("mask", _NO_MASKS),
-                               ts, s.width, s.height, s.spp, s.x, s.y, s.u, s.v, s.t,
-                               s.tup if s.tup is not None else _NO_TUPLES,
-                               t.p0_32, t.dp_32, t.l0_32, t.dl_32, t.edge_eps, self.backface_culling,
-                               self.specialize,
-                               out["tri"], out["pix"], out["sidx"], out["z"], out["b0"], out["b1"],
-                               out["b2"], out["noread"], ops, events)
+        m = sample_test_kernel(*self.kernel_args(tiles, out, ops, events))
         tested = events[EV_TESTED]
         for d_ in range(4):
             ops[OP_MADD] += events[EV_2D + d_] * TEST_OPS_MADD[d_]
