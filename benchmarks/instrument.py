@@ -67,15 +67,17 @@ class Script:
         self.stages: list[tuple[str, int]] = []
         self.n_source = 0
         self.queue_depth = 0
+        self.capacities = None
         self.frame_cycles = 0.0
 
 
 @contextlib.contextmanager
 def recording(script: Script):
-    def simulate(stages, source_batches, queue_depth):
+    def simulate(stages, source_batches, queue_depth, capacities=None):
         script.stages = [(s.name, s.latency) for s in stages]
         script.n_source = len(source_batches)
         script.queue_depth = queue_depth
+        script.capacities = capacities
         for i, s in enumerate(stages):
             def step(batch, _f=s.step, _i=i):
                 script.order.append(_i)
@@ -83,7 +85,7 @@ def recording(script: Script):
                 script.returns[_i].append((len(outs), cycles))
                 return outs, cycles
             s.step = step
-        res = _REAL_SIMULATE(stages, source_batches, queue_depth)
+        res = _REAL_SIMULATE(stages, source_batches, queue_depth, capacities)
         script.frame_cycles = res.frame_cycles
         return res
 
@@ -105,7 +107,7 @@ def _empty_timing() -> TimingResult:
 def direct(order: list[int] | None):
     """Replace SimPy by a plain loop (replaying ``order``, or depth-first if None)."""
 
-    def simulate(stages, source_batches, queue_depth):
+    def simulate(stages, source_batches, queue_depth, capacities=None):
         n = len(stages)
         steps = [s.step for s in stages]
         if order is None:
@@ -144,7 +146,7 @@ def simpy_only(script: Script) -> tuple[float, float, float]:
     src = [0] * script.n_source
     t0 = time.perf_counter()
     c0 = time.process_time()
-    res = _REAL_SIMULATE(stages, src, script.queue_depth)
+    res = _REAL_SIMULATE(stages, src, script.queue_depth, script.capacities)
     return time.perf_counter() - t0, time.process_time() - c0, res.frame_cycles
 
 
@@ -181,9 +183,9 @@ def unit_timers(timers: Timers):
                                     _timed(sample_tester_mod.sample_test_kernel, timers, "sample_test_kernel")))
         stack.enter_context(patched(render, "make_samples", _timed(render.make_samples, timers, "make_samples")))
 
-        def simulate(stages, source_batches, queue_depth):
+        def simulate(stages, source_batches, queue_depth, capacities=None):
             for s in stages:
                 s.step = _timed(s.step, timers, "step:" + s.name)
-            return _timed(_REAL_SIMULATE, timers, "simulate")(stages, source_batches, queue_depth)
+            return _timed(_REAL_SIMULATE, timers, "simulate")(stages, source_batches, queue_depth, capacities)
         stack.enter_context(patched(render, "simulate", simulate))
         yield
