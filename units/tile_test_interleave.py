@@ -18,8 +18,6 @@ import numpy as np
 from pipeline_sim.counters import OP_CMP, OP_MADD, OP_MUL, OP_RCP
 from units.rounding import F32_REL
 
-ALL_TUPLES = np.uint64(0xFFFFFFFFFFFFFFFF)
-
 
 @nb.njit(cache=True)
 def interleave_mask(p0, dp, l0, dl, tri, tuples, x0, x1, y0, y1, ta, tb, ops):
