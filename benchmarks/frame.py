@@ -20,10 +20,11 @@ microseconds per batch), and memory: peak RSS (VmHWM) of the whole process,
 of the build and of the run (the mark is reset after the build, as in the
 scaling section), the RSS growth measured across sample generation and the
 ROP's buffer allocation, and an estimate of how the run's memory divides,
-from array sizes: the sample arrays (x, y, u, v, t float32 per sample), the
-multisample buffers (depth float32 + RGBA float32 per sample), the
-per-triangle tables (the draw and triangle setup's table) and the resolve's
-temporaries.
+from array sizes: the sample arrays (x, y, u, v, t float32 per sample) and
+the sample tester's tile-major copies, the multisample buffers (depth
+float32 + RGBA float32 per sample), all of one screen region at a time
+(``pipeline.region_samples``), the resolved image, the per-triangle tables
+(the draw and triangle setup's table) and the resolve's temporaries.
 """
 
 from __future__ import annotations
@@ -39,6 +40,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 KILL_GRACE_S = 60
 MB = 2.0 ** 20
+SUMMED = ("sample_arrays", "tester_layout", "multisample_buffers", "image", "per_triangle_tables",
+          "resolve_temporaries", "zcull")
 
 
 # ---------------------------------------------------------------------------
@@ -68,25 +71,30 @@ def _reset_peak() -> bool:
         return False
 
 
-def estimate_bytes(draw, width: int, height: int, spp: int, tile_size: int, zcull_boxes: int) -> dict:
-    """How the run's memory divides, from array sizes (bytes)."""
+def estimate_bytes(draw, width: int, height: int, spp: int, tile_size: int, zcull_boxes: int,
+                   region_rows: int, sets_kept: int) -> dict:
+    """How the run's memory divides, from array sizes (bytes). Samples and
+    multisample buffers exist for one screen region of ``region_rows`` rows at
+    a time (the sample sets of up to ``sets_kept`` regions are cached)."""
     from units.triangle_setup import TriangleTable
 
-    n = width * height * spp
+    n = width * min(region_rows, height) * spp  # samples of one region
     one = TriangleTable.allocate(1)
     table_per_tri = sum(getattr(one, f).nbytes for f in one.__dataclass_fields__)
     draw_bytes = sum(getattr(draw, f).nbytes for f in ("q", "r", "lens_x", "lens_y", "pos", "nrm", "color",
                                                        "material", "object_id"))
     tiles = -(-width // tile_size) * -(-height // tile_size)
     return {
-        "sample_arrays": 5 * 4 * n,  # x, y, u, v, t float32
-        "multisample_buffers": (4 + 16) * n,  # depth float32 + RGBA float32
+        "sample_arrays": 5 * 4 * n * sets_kept,  # x, y, u, v, t float32 of the cached regions
+        "tester_layout": 2 * 5 * 4 * n,  # the sample tester's two tile-major copies of its region
+        "multisample_buffers": (4 + 16) * n,  # depth float32 + RGBA float32 of the ROP's region
+        "image": width * height * 4 * 4,  # resolved float32 RGBA
         "draw": draw_bytes,
         "triangle_table": table_per_tri * draw.n,
         "per_triangle_tables": draw_bytes + table_per_tri * draw.n,
         "table_bytes_per_triangle": table_per_tri,
         "draw_bytes_per_triangle": draw_bytes / max(1, draw.n),
-        "resolve_temporaries": width * height * 4 * (8 + 4),  # float64 mean, float32 copy
+        "resolve_temporaries": width * min(region_rows, height) * 4 * (8 + 4),  # float64 mean, float32 copy
         "zcull": tiles * (2 * 4 * zcull_boxes + 1),
     }
 
@@ -134,19 +142,20 @@ def frame_point(spec: dict) -> dict:
         out["rss_before_run_mb"] = _status_mb("VmRSS")
         out["triangles"] = p.draw.n
         arch = p.arch
-        est = estimate_bytes(p.draw, spec["width"], spec["height"], spec["spp"], arch.tile_traverser.tile_size,
-                             arch.zcull.time_slices * arch.zcull.lens_boxes ** 2)
-        out["estimate_mb"] = {k: (v / MB if not k.endswith("per_triangle") else v) for k, v in est.items()}
 
-        # RSS growth across sample generation and the ROP's buffers
+        # sample generation (once per screen region) and the ROP's buffers
         real_make, real_rop = render.make_samples, render.Rop
+        mem_marks["make_samples_s"] = 0.0
+        mem_marks["sample_sets_made"] = 0
 
         def make_samples(*a, **k):
             r0 = _status_mb("VmRSS")
             t0 = time.perf_counter()
             s = real_make(*a, **k)
-            mem_marks["make_samples_s"] = time.perf_counter() - t0
-            mem_marks["samples_rss_growth_mb"] = _status_mb("VmRSS") - r0
+            mem_marks["make_samples_s"] += time.perf_counter() - t0
+            mem_marks["sample_sets_made"] += 1
+            mem_marks["samples_rss_growth_mb"] = max(mem_marks.get("samples_rss_growth_mb", 0.0),
+                                                     _status_mb("VmRSS") - r0)
             mem_marks["samples_nbytes_mb"] = sum(getattr(s, f).nbytes for f in "xyuvt") / MB
             return s
 
@@ -154,7 +163,7 @@ def frame_point(spec: dict) -> dict:
             r0 = _status_mb("VmRSS")
             obj = real_rop(*a, **k)
             mem_marks["rop_rss_growth_mb"] = _status_mb("VmRSS") - r0
-            mem_marks["rop_nbytes_mb"] = (obj.depth.nbytes + obj.color.nbytes) / MB
+            mem_marks["rop_nbytes_mb"] = (obj.depth.nbytes + obj.color.nbytes + obj.image.nbytes) / MB
             return obj
 
         def progress(done, n):
@@ -174,6 +183,11 @@ def frame_point(spec: dict) -> dict:
             out["run_s"] = time.perf_counter() - c0
             out["run_cpu_s"] = time.process_time() - p0
         out["run_peak_mb"] = _status_mb("VmHWM")
+        out["regions"] = res.region_info
+        est = estimate_bytes(p.draw, spec["width"], spec["height"], spec["spp"], arch.tile_traverser.tile_size,
+                             arch.zcull.time_slices * arch.zcull.lens_boxes ** 2, res.regions.rows,
+                             min(3, res.regions.count))
+        out["estimate_mb"] = {k: (v / MB if not k.endswith("per_triangle") else v) for k, v in est.items()}
         out["rss_after_run_mb"] = _status_mb("VmRSS")
         out["frame_cycles"] = res.timing.frame_cycles
         out["samples_tested"] = res.counter("sample_tester", "samples_tested")
@@ -298,22 +312,27 @@ def report(f: dict, table, add) -> list[str]:
         out.append(f"  {p['n']:,} triangles, memory: RSS {p['rss_after_warm_up_mb']:.0f} MB after imports and warm-up, "
                    f"{p['rss_before_run_mb']:.0f} MB after the build (build peak {p['build_peak_mb']:.0f} MB), "
                    f"run peak {p['run_peak_mb']:.0f} MB, {p['rss_after_run_mb']:.0f} MB after the run")
+        reg = p["regions"]
+        out.append(f"  screen regions: {reg['count']} of {reg['rows']} rows; {reg['sample_sets_made']} sample sets "
+                   f"made in {p.get('make_samples_s', float('nan')):.1f} s")
         rows = [
-            ("sample arrays (5 x float32 per sample)", f"{e['sample_arrays']:.0f} MB",
-             f"RSS grew {p.get('samples_rss_growth_mb', float('nan')):.0f} MB in make_samples "
-             f"({p.get('make_samples_s', float('nan')):.1f} s)"),
-            ("multisample buffers (depth + RGBA float32)", f"{e['multisample_buffers']:.0f} MB",
-             f"RSS grew {p.get('rop_rss_growth_mb', float('nan')):.0f} MB creating the ROP"),
+            ("sample arrays (5 x float32 per sample, regions cached)", f"{e['sample_arrays']:.0f} MB",
+             f"largest RSS growth in one make_samples: {p.get('samples_rss_growth_mb', float('nan')):.0f} MB"),
+            ("sample tester's tile-major copies of its region", f"{e['tester_layout']:.0f} MB", ""),
+            ("multisample buffers of a region (depth + RGBA float32)", f"{e['multisample_buffers']:.0f} MB",
+             f"RSS grew {p.get('rop_rss_growth_mb', float('nan')):.0f} MB creating the ROP (with the image)"),
+            ("resolved image (RGBA float32)", f"{e['image']:.0f} MB", ""),
             ("per-triangle: draw", f"{e['draw']:.0f} MB", f"{e['draw_bytes_per_triangle']:.0f} B per triangle"),
             ("per-triangle: setup table", f"{e['triangle_table']:.0f} MB",
              f"{e['table_bytes_per_triangle']:.0f} B per triangle"),
             ("resolve temporaries", f"{e['resolve_temporaries']:.0f} MB", "float64 mean + float32 image"),
             ("z-cull tile boxes", f"{e['zcull']:.1f} MB", ""),
-            ("sum of the above", f"{sum(v for k, v in e.items() if k in ('sample_arrays', 'multisample_buffers', 'per_triangle_tables', 'resolve_temporaries', 'zcull')):.0f} MB",
+            ("sum of the above", f"{sum(v for k, v in e.items() if k in SUMMED):.0f} MB",
              f"vs run peak - RSS after warm-up = {p['run_peak_mb'] - p['rss_after_warm_up_mb']:.0f} MB"),
         ]
         out.append(table(rows, ("estimated from array sizes", "size", "measured")))
-        for k in ("sample_arrays", "multisample_buffers", "per_triangle_tables"):
+        add("frame", f"regions@{p['n']}", reg["count"], "regions", f"{reg['rows']} rows each")
+        for k in ("sample_arrays", "tester_layout", "multisample_buffers", "per_triangle_tables"):
             add("frame", f"estimate_mb_{k}@{p['n']}", e[k], "MB", "from array sizes")
         parts = p.get("parts_s", {})
         top = [(k, v) for k, v in parts.items() if k not in ("simulate",)][:6]

@@ -107,6 +107,7 @@ def cmd_run(args) -> int:
         "dimensions": result.dimensions,
         "units_used": result.units_used,
         "bypassed": [u for u in ("zcull", "sample_tester") if u not in result.units_used],
+        "screen_regions": result.region_info,
         "frame_cycles": result.timing.frame_cycles,
         "headline": headline(result),
         "wall_time_s": result.wall_time,

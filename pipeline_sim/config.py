@@ -48,11 +48,13 @@ class PipelineConfig:
     specialize: bool = True
     sample_pattern: str = "net"
     interleave_tuples: int = 64
+    region_samples: int = 1 << 22
 
     def validate(self, where: str) -> None:
         _choice(where, "mode", self.mode, ("standard", "conservative"))
         for name in ("triangles_per_batch", "tiles_per_batch", "samples_per_batch", "queue_depth"):
             _at_least(where, name, getattr(self, name), 1)
+        _at_least(where, "region_samples", self.region_samples, 0)
         _positive(where, "clock_ghz", self.clock_ghz)
         _choice(where, "sample_pattern", self.sample_pattern, SAMPLE_PATTERNS)
         if not 1 <= self.interleave_tuples <= 64:

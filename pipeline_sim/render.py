@@ -24,6 +24,7 @@ from pipeline_sim.counters import CounterSet, counters_frame
 from pipeline_sim.draw import Draw, build_draw
 from pipeline_sim.errors import UserError
 from pipeline_sim.pipeline import Stage, TimingResult, chunks, count_records, cycles_for, simulate
+from pipeline_sim.regions import RegionPlan, RegionSamples, TriangleBatch, bin_triangles, plan_regions, row_step
 from pipeline_sim.sampling import make_samples
 from pipeline_sim.shaders import standard_params, standard_shader
 from units.rop import Rop
@@ -79,13 +80,22 @@ class PassResult:
     wall_time: float
     dimensions: dict[str, bool]
     units_used: list[str]
-    depth: np.ndarray
-    samples: Any
+    depth: np.ndarray | None  # (H, W, spp); None over several regions unless kept
+    samples: Any  # the SampleSet of a one-region frame, else None
+    regions: RegionPlan | None = None
+    region_samples_made: int = 1  # sample sets generated (a region dropped and needed again counts twice)
 
     def counter(self, unit: str, name: str) -> int:
         c = self.counters
         v = c[(c.unit == unit) & (c.counter == name)].value
         return int(v.iloc[0]) if len(v) else 0
+
+    @property
+    def region_info(self) -> dict[str, int]:
+        """How the frame was cut into screen regions (for run.json and summaries)."""
+        plan = self.regions
+        return {"count": plan.count if plan else 1, "rows": plan.rows if plan else 0,
+                "sample_sets_made": self.region_samples_made}
 
     @property
     def ste(self) -> float:
@@ -95,8 +105,13 @@ class PassResult:
 
 
 def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
-             progress: Callable[[int, int], None] | None = None) -> PassResult:
-    """Simulate one pass and return its image, counters and timing."""
+             progress: Callable[[int, int], None] | None = None, keep_depth: bool = False) -> PassResult:
+    """Simulate one pass and return its image, counters and timing.
+
+    A frame of more than ``pipeline.region_samples`` samples is rendered in
+    screen regions (``pipeline_sim.regions``); then its per-sample depth is
+    kept only with ``keep_depth``.
+    """
     start = time.perf_counter()
     arch = p.arch
     draw = p.draw
@@ -108,10 +123,18 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         raise UserError(f"pass {p.name}: texture '{p.texture}' needs run_passes")
     spp = 1 if conservative else p.spp
     pattern = p.sample_pattern or ("table" if p.sample_table is not None else arch.pipeline.sample_pattern)
-    samples = make_samples(draw.width, draw.height, spp, p.seed, lens=lens, motion=motion,
-                           pattern=pattern, table=p.sample_table, interleave_tuples=arch.pipeline.interleave_tuples)
+
+    def region_samples(rows: tuple[int, int]):
+        return make_samples(draw.width, draw.height, spp, p.seed, lens=lens, motion=motion, pattern=pattern,
+                            table=p.sample_table, interleave_tuples=arch.pipeline.interleave_tuples, rows=rows)
+
+    cached_shading = arch.shading.mode == "cache" and not conservative
+    step = row_step(ts, arch.tile_traverser.coarse_factor, arch.shading.shading_rate if cached_shading else None)
+    plan = plan_regions(draw.width, draw.height, spp, arch.pipeline.region_samples, step)
+    samples = RegionSamples(plan, region_samples)
+    first = samples.region(0)
     algorithm = arch.tile_test.algorithm
-    if algorithm == "interleave_uvt" and samples.tuples is None:
+    if algorithm == "interleave_uvt" and first.tuples is None:
         raise UserError(f"pass {p.name}: tile_test.algorithm = 'interleave_uvt' needs the 'interleave' sample "
                         f"pattern, not '{pattern}'")
 
@@ -121,7 +144,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     traverser = TileTraverser(arch.tile_traverser, setup.table, ts, draw.width, draw.height,
                               coarse_test=algorithm == "hierarchical")
     tile_test = TileTest(arch.tile_test, setup.table, ts, draw.width, draw.height, draw.depth_w,
-                         tuples=samples.tuples)
+                         tuples=first.tuples)
     spec = arch.pipeline.specialize
     zcull = ZCull(arch.zcull, arch.rop.depth_test, ts, draw.width, draw.height, p.clear_depth,
                   motion or not spec, lens or not spec)
@@ -130,25 +153,37 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     tester = SampleTester(arch.sample_tester, setup.table, samples, ts, arch.triangle_setup.backface_culling, spec)
     shading = Shading(arch.shading, draw, setup.table, samples, p.shader, p.params, texture, conservative)
     rop = Rop(arch.rop, draw.width, draw.height, spp, p.clear_color, p.clear_depth,
-              zcull if zcull.active else None, samples)
+              zcull if zcull.active else None, samples, plan=plan, keep_depth=keep_depth)
     cs = {u.name: CounterSet(u.name, u.events) for u in (setup, traverser, tile_test, zcull, tester, shading, rop)}
     pcfg = arch.pipeline
     done = [0]
+    set_up = np.zeros(draw.n, np.bool_)  # per triangle: set up (in an earlier region's batch or this one)
+    kept = np.zeros(draw.n, np.bool_)  # and survived setup
 
-    def step_setup(ids):
-        out, ops, ev = setup.run(ids)
-        c = cs["triangle_setup"]
-        c.add_ops(ops), c.add_events(ev), count_records(c, len(ids), len(out))
-        c.add("bytes_read", len(ids) * SETUP_BYTES_IN)
-        c.add("bytes_written", len(out) * SETUP_BYTES_OUT)
-        done[0] += len(ids)
-        if progress is not None:
-            progress(done[0], draw.n)
+    def step_setup(batch: TriangleBatch):
+        # a triangle is set up once, in the first region it reaches; later
+        # regions fetch its setup results from the bin at no cost
+        ids = batch.ids
+        new = ids[~set_up[ids]]
+        if len(new):
+            set_up[new] = True
+            out, ops, ev = setup.run(new)
+            kept[out] = True
+            c = cs["triangle_setup"]
+            c.add_ops(ops), c.add_events(ev), count_records(c, len(new), len(out))
+            c.add("bytes_read", len(new) * SETUP_BYTES_IN)
+            c.add("bytes_written", len(out) * SETUP_BYTES_OUT)
+            done[0] += len(new)
+            if progress is not None:
+                progress(done[0], draw.n)
+        survivors = ids[kept[ids]]
         cfg = arch.triangle_setup
-        return ([out] if len(out) else []), cycles_for(len(ids), cfg.throughput, cfg.instances)
+        return ([TriangleBatch(batch.region, survivors)] if len(survivors) else []), cycles_for(
+            len(new), cfg.throughput, cfg.instances)
 
-    def step_traverse(ids):
-        out, ops, ev = traverser.run(ids)
+    def step_traverse(batch: TriangleBatch):
+        out, ops, ev = traverser.run(batch.ids, plan.bounds(batch.region))
+        ids = batch.ids
         c = cs["tile_traverser"]
         n = len(out["tri"])
         c.add_ops(ops), c.add_events(ev), count_records(c, len(ids), n)
@@ -229,7 +264,14 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         bypassed.add("sample_tester")
     stages = [Stage(name, fn, lat) for name, fn, lat in stage_defs if name not in bypassed]
     ids = np.arange(draw.n, dtype=np.int64)
-    tri_batches = [ids[i : i + pcfg.triangles_per_batch] for i in range(0, draw.n, pcfg.triangles_per_batch)]
+    if plan.count > 1:
+        # binning needs each triangle's screen bounds: a functional setup pass
+        # here (its work is counted when the simulated setup stage runs)
+        for i in range(0, draw.n, 1 << 16):
+            setup.run(ids[i : i + (1 << 16)])
+    bins = bin_triangles(setup.table.bounds, ids, plan)
+    tpb = pcfg.triangles_per_batch
+    tri_batches = [TriangleBatch(r, b[i : i + tpb]) for r, b in enumerate(bins) for i in range(0, len(b), tpb)]
     # FIFOs hold queue_depth batches of the shipped default size, counted in
     # records: a batch size then sets only the granularity of the timing
     default = PipelineConfig()
@@ -238,12 +280,13 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     capacities = [pcfg.queue_depth * per_kind[INPUT_KIND[st.name]] for st in stages]
     timing = simulate(stages, tri_batches, pcfg.queue_depth, capacities)
     image = rop.resolve()
+    depth = rop.depth_samples()
     wall = time.perf_counter() - start
     counters = counters_frame([cs[name] for name in UNIT_ORDER])
     return PassResult(
         name=p.name, image=image, counters=counters, timing=timing, wall_time=wall,
         dimensions={"motion": motion, "lens": lens}, units_used=[s.name for s in stages],
-        depth=rop.depth.reshape(draw.height, draw.width, spp), samples=samples,
+        depth=depth, samples=first if plan.count == 1 else None, regions=plan, region_samples_made=samples.made,
     )
 
 
@@ -266,6 +309,6 @@ def scene_pass(scene, arch: ArchConfig, **overrides) -> RenderPass:
     return RenderPass(**kw)
 
 
-def render_scene(scene, arch: ArchConfig, progress=None, **overrides) -> PassResult:
+def render_scene(scene, arch: ArchConfig, progress=None, keep_depth: bool = False, **overrides) -> PassResult:
     """Render a scene in one standard pass."""
-    return run_pass(scene_pass(scene, arch, **overrides), progress=progress)
+    return run_pass(scene_pass(scene, arch, **overrides), progress=progress, keep_depth=keep_depth)

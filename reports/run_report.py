@@ -60,7 +60,9 @@ def summary_text(result, title: str = "") -> str:
     lines = []
     if title:
         lines.append(title)
-    lines.append(f"dimensions: {dims}   units: {' -> '.join(result.units_used)}")
+    regions = result.region_info
+    where = (f"   screen regions: {regions['count']} of {regions['rows']} rows" if regions["count"] > 1 else "")
+    lines.append(f"dimensions: {dims}   units: {' -> '.join(result.units_used)}{where}")
     lines.append(unit_table(result).to_string(index=False))
     lines.append(
         f"frame cycles {hd['frame_cycles']:,.0f} | STE {100 * hd['ste']:.1f}% "

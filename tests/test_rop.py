@@ -101,7 +101,7 @@ def test_rop_kernel_matches_sequential_reference(func, blend, depth_write):
         # several kernel calls carry buffer state, like consecutive batches
         for batch in range(3):
             frags = random_frags(rng, 80, npix, spp)
-            rop_kernel(*frags, spp, DEPTH_FUNCS.index(func), depth_write, BLEND_MODES.index(blend),
+            rop_kernel(*frags, spp, 0, DEPTH_FUNCS.index(func), depth_write, BLEND_MODES.index(blend),
                        depth_buf, color_buf, ops, events, traffic)
             cnt = reference_rop(as_frag_list(*frags), spp, func, depth_write, blend, ref_depth, ref_color)
             total = cnt if total is None else {k: total[k] + cnt[k] for k in total}

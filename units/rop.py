@@ -6,6 +6,10 @@ function, and on a pass its color is blended (replace, add, min, max) into a
 float RGBA multisample color buffer. Resolve is a box filter over each
 pixel's samples. After each batch the z-cull boxes of the touched tiles are
 refreshed from the depth buffer.
+
+The multisample buffers hold one screen region (``pipeline_sim.regions``)
+at a time: when the first batch of the next region arrives, the current one
+is resolved into the image and its buffers are dropped.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ import numpy as np
 
 from pipeline_sim.config import BLEND_MODES, DEPTH_FUNCS
 from pipeline_sim.counters import N_OPS, OP_ADD, OP_CMP
+from pipeline_sim.regions import RegionPlan, RegionSamples
 
 EVENTS = ("depth_tests", "depth_passed", "depth_reads_skipped", "samples_written")
 EV_TESTS, EV_PASSED, EV_SKIPPED, EV_WRITTEN = range(len(EVENTS))
@@ -24,10 +29,11 @@ COLOR_BYTES = 16
 
 
 @nb.njit(cache=True)
-def rop_kernel(pix, sidx, z, color, noread, spp, func, depth_write, blend, depth_buf, color_buf, ops, events, traffic):
-    """Depth test and blend each sample in order (PIPELINE §2.7)."""
+def rop_kernel(pix, sidx, z, color, noread, spp, pix0, func, depth_write, blend, depth_buf, color_buf, ops, events,
+               traffic):
+    """Depth test and blend each sample in order (PIPELINE §2.7); the buffers start at pixel ``pix0``."""
     for i in range(pix.shape[0]):
-        k = pix[i] * spp + sidx[i]
+        k = (pix[i] - pix0) * spp + sidx[i]
         d = z[i]
         events[EV_TESTS] += 1
         if noread[i]:
@@ -74,31 +80,68 @@ def rop_kernel(pix, sidx, z, color, noread, spp, func, depth_write, blend, depth
 
 
 class Rop:
-    """Functional model of the ROP and the multisample render target."""
+    """Functional model of the ROP and the multisample render target.
+
+    ``plan``: the screen regions (default: the frame as one region);
+    ``samples``: the samples, needed to refresh z-cull's boxes;
+    ``keep_depth``: also keep the whole frame's per-sample depth
+    (``frame_depth``); with one region it is the depth buffer itself.
+    """
 
     name = "rop"
     events = EVENTS
 
     def __init__(self, config, width: int, height: int, spp: int, clear_color, clear_depth: float, zcull=None,
-                 samples=None):
+                 samples=None, plan: RegionPlan | None = None, keep_depth: bool = True):
         self.config = config
         self.width = width
         self.height = height
         self.spp = spp
-        self.depth = np.full(width * height * spp, clear_depth, np.float32)
-        self.color = np.empty((width * height * spp, 4), np.float32)
-        self.color[:] = np.asarray(clear_color, np.float32)
+        self.clear_color = np.asarray(clear_color, np.float32)
+        self.clear_depth = np.float32(clear_depth)
         self.func = DEPTH_FUNCS.index(config.depth_test)
         self.blend = BLEND_MODES.index(config.blend)
         self.zcull = zcull
-        self.samples = samples
+        self.plan = plan or RegionPlan(width, height, max(height, 1))
+        self.regions = RegionSamples.of(samples, self.plan) if samples is not None else None
+        self.samples = None
+        self.image = np.empty((height, width, 4), np.float32)
+        self.image[:] = self.clear_color
+        self.keep_depth = keep_depth and self.plan.count > 1
+        self.frame_depth = np.full(width * height * spp, clear_depth, np.float32) if self.keep_depth else None
+        self.region = -1
+        self._open(0)
+
+    def _open(self, region: int) -> None:
+        """Fresh (cleared) buffers for ``region``."""
+        r0, r1 = self.plan.bounds(region)
+        n = (r1 - r0) * self.width * self.spp
+        self.region = region
+        self.pix0 = r0 * self.width
+        self.depth = np.full(n, self.clear_depth, np.float32)
+        self.color = np.empty((n, 4), np.float32)
+        self.color[:] = self.clear_color
+        self.samples = self.regions.region(region) if self.regions is not None and self.zcull is not None else None
+
+    def _resolve_region(self) -> None:
+        """Box-filter the current region into the image (and keep its depth when asked)."""
+        r0, r1 = self.plan.bounds(self.region)
+        c = self.color.reshape(r1 - r0, self.width, self.spp, 4)
+        self.image[r0:r1] = c.mean(axis=2, dtype=np.float64).astype(np.float32)
+        if self.frame_depth is not None:
+            self.frame_depth[self.pix0 * self.spp : r1 * self.width * self.spp] = self.depth
 
     def run(self, batch: dict[str, np.ndarray]) -> tuple[None, np.ndarray, np.ndarray, np.ndarray]:
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
         traffic = np.zeros(2, np.int64)
-        rop_kernel(batch["pix"], batch["sidx"], batch["z"], batch["color"], batch["noread"], self.spp, self.func,
-                   self.config.depth_write, self.blend, self.depth, self.color, ops, events, traffic)
+        if len(batch["pix"]):
+            region = self.plan.region_of_row(int(batch["pix"][0]) // self.width)
+            if region != self.region:  # batches come region by region: this one is done
+                self._resolve_region()
+                self._open(region)
+        rop_kernel(batch["pix"], batch["sidx"], batch["z"], batch["color"], batch["noread"], self.spp, self.pix0,
+                   self.func, self.config.depth_write, self.blend, self.depth, self.color, ops, events, traffic)
         if self.zcull is not None:
             zev = np.zeros(len(self.zcull.events), np.int64)
             self.zcull.refresh(batch["pix"], self.samples, self.depth, zev)
@@ -107,5 +150,11 @@ class Rop:
 
     def resolve(self) -> np.ndarray:
         """Box-filter resolve: the mean of each pixel's samples, (H, W, 4) float32."""
-        c = self.color.reshape(self.height, self.width, self.spp, 4)
-        return c.mean(axis=2, dtype=np.float64).astype(np.float32)
+        self._resolve_region()
+        return self.image.copy()
+
+    def depth_samples(self) -> np.ndarray | None:
+        """The frame's per-sample depth, (H, W, spp), after ``resolve``; None
+        when the frame spans several regions and ``keep_depth`` was off."""
+        d = self.frame_depth if self.plan.count > 1 else self.depth
+        return None if d is None else d.reshape(self.height, self.width, self.spp)

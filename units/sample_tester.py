@@ -26,6 +26,7 @@ import numba as nb
 import numpy as np
 
 from pipeline_sim.counters import N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+from pipeline_sim.regions import RegionSamples, samples_for_row
 
 EVENTS = ("samples_tested", "samples_covered", "samples_in_range", "pixels_visited",
           "tests_2d", "tests_3d_xyt", "tests_4d_xyuv", "tests_5d")
@@ -587,8 +588,8 @@ def _positions(words, n_words, out):
 
 
 @nb.njit(cache=True)
-def _tile_major(width, height, spp, tile_size, slot_major, x, y, u, v, t, tup, ax, ay, tu, tv, tt, ttup, slot_lo,
-                slot_hi):
+def _tile_major(width, height, row0, spp, tile_size, slot_major, x, y, u, v, t, tup, ax, ay, tu, tv, tt, ttup,
+                slot_lo, slot_hi):
     """The samples in one of the sample tester's tile-major orders.
 
     Every tile's samples become contiguous, from ``base = (ty * tile_size *
@@ -598,7 +599,7 @@ def _tile_major(width, height, spp, tile_size, slot_major, x, y, u, v, t, tup, a
     (pixel-major), or with ``slot_major`` to ``s * w * h + r * w + c``, so
     that a range of slots is a contiguous run. ``ax, ay`` are absolute: the
     pixel's float32 coordinates plus the offsets, exactly as the tester adds
-    them. ``slot_lo[s], slot_hi[s]``: the smallest and largest t of slot s
+    them (the rows start at image row ``row0``). ``slot_lo[s], slot_hi[s]``: the smallest and largest t of slot s
     over all pixels (NaN ignored), so a tile's t^ selects a contiguous range
     of slots that holds every sample with t in t^.
     """
@@ -625,7 +626,7 @@ def _tile_major(width, height, spp, tile_size, slot_major, x, y, u, v, t, tup, a
             for s in range(spp):
                 k = base + s * step
                 ax[k] = np.float32(px) + x[src + s]
-                ay[k] = np.float32(py) + y[src + s]
+                ay[k] = np.float32(py + row0) + y[src + s]
                 tu[k] = u[src + s]
                 tv[k] = v[src + s]
                 tk = t[src + s]
@@ -641,7 +642,7 @@ def _tile_major(width, height, spp, tile_size, slot_major, x, y, u, v, t, tup, a
 @nb.njit(cache=True, error_model="numpy")
 def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, noread_in,
                        lines, masks, tile_size, width, height, spp, sx, sy, su, sv, st, stup, slot_lo, slot_hi,
-                       uv_range, xy_max,
+                       uv_range, xy_max, row0,
                        p0, dp, l0, dl, edge_eps, backface_culling, specialize,
                        out_tri, out_pix, out_sidx, out_z, out_b0, out_b1, out_b2, out_noread, ops, events):
     """Interval lookup on the tile's samples and exact inside tests (002 §5; 004 eq. 3, 10-13).
@@ -675,7 +676,9 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
     stay watertight. The modelled hardware looks the t-range up with a
     binary search on the t-ordered samples; its compares are counted as
     such. ``xy_max`` bounds |x| and |y| of every sample's offset in its
-    pixel.
+    pixel. The samples may be those of a screen region: rows from image row
+    ``row0`` (a tile row), ``height`` of them; ``tile_y`` then counts tile
+    rows from ``row0`` and the pixels written are numbered from it.
     """
     n_frame = width * height * spp  # the slot-major order's start
     u_min, u_max, v_min, v_max = uv_range[0], uv_range[1], uv_range[2], uv_range[3]
@@ -873,7 +876,7 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
         fu = (min(ub, u_max) - max(ua, u_min)) / (u_max - u_min) if u_max > u_min else 1.0
         fv = (min(vb, v_max) - max(va, v_min)) / (v_max - v_min) if v_max > v_min else 1.0
         fused = not extra and fu * fv >= 0.5
-        n0, n1, n2 = _tolerances(c, ta, tb, ua, ub, va, vb, np.float64(px1) + xy_max, np.float64(py1) + xy_max,
+        n0, n1, n2 = _tolerances(c, ta, tb, ua, ub, va, vb, np.float64(px1) + xy_max, np.float64(py1 + row0) + xy_max,
                                  edge_eps[tri])
         if fused:
             tile_t, tile_all, nc = _pass1_fused(kind, nlen, k0, st, su, sv, sx, sy, cand, ta, tb, ua, ub, va, vb, c,
@@ -990,7 +993,12 @@ _NO_TUPLES = np.zeros(0, np.int8)
 
 
 class SampleTester:
-    """Functional model of the sample tester unit."""
+    """Functional model of the sample tester unit.
+
+    ``samples``: a sample set, or the samples of the screen regions
+    (``RegionSamples``), which the tester takes one region at a time, as its
+    batches reach it; the tile-major copies are those of the current region.
+    """
 
     name = "sample_tester"
     events = EVENTS
@@ -999,10 +1007,22 @@ class SampleTester:
         self.config = config
         self.specialize = specialize
         self.table = table
-        self.samples = samples
+        self.regions = RegionSamples.of(samples)
+        self.samples = samples if samples is not self.regions else None
         self.tile_size = tile_size
         self.backface_culling = backface_culling
         self._layout = None
+
+    def use_rows_of(self, tiles: dict[str, np.ndarray]) -> None:
+        """Take the samples of the region of this batch's tiles (all in one region)."""
+        ty = tiles["ty"]
+        row = int(ty[0]) * self.tile_size if len(ty) else (self.samples.row0 if self.samples is not None else 0)
+        s = samples_for_row(self.regions, self.samples, row)
+        if s is not self.samples:
+            if s.row0 % self.tile_size:
+                raise ValueError(f"a screen region starts at row {s.row0}, not on a tile row")
+            self.samples = s
+            self._layout = None
 
     def layout(self) -> tuple:
         """The samples in the kernel's two tile-major orders (``_tile_major``),
@@ -1012,14 +1032,14 @@ class SampleTester:
             s = self.samples
             n = len(s.t)
             if s.width * s.height * s.spp != n:
-                raise ValueError("the sample tester needs the samples of the whole frame")
+                raise ValueError("the sample tester needs the samples of whole rows")
             has_tup = s.tup is not None
             lo = np.empty(s.spp, np.float32)
             hi = np.empty(s.spp, np.float32)
             arrays = tuple(np.empty(2 * n, np.float32) for _ in range(5)) + (np.empty(2 * n if has_tup else 1,
                                                                                      np.int8),)
             for half, slot_major in ((slice(0, n), False), (slice(n, 2 * n), True)):
-                _tile_major(s.width, s.height, s.spp, self.tile_size, slot_major, s.x, s.y, s.u, s.v, s.t,
+                _tile_major(s.width, s.height, s.row0, s.spp, self.tile_size, slot_major, s.x, s.y, s.u, s.v, s.t,
                             s.tup if has_tup else _NO_TUPLES, *(a[half] for a in arrays[:5]),
                             arrays[5][half] if has_tup else arrays[5], lo, hi)
             if not (np.all(np.diff(lo) >= 0) and np.all(np.diff(hi) >= 0)):
@@ -1035,17 +1055,20 @@ class SampleTester:
     def kernel_args(self, tiles: dict[str, np.ndarray], out: dict[str, np.ndarray], ops: np.ndarray,
                     events: np.ndarray) -> tuple:
         """The arguments of ``sample_test_kernel`` for a batch of tile records."""
+        self.use_rows_of(tiles)
         s = self.samples
         t = self.table
-        return (tiles["tri"], tiles["tx"], tiles["ty"], tiles["t_lo"], tiles["t_hi"],
+        ty = tiles["ty"] - np.int32(s.row0 // self.tile_size) if s.row0 else tiles["ty"]  # rows from row0
+        return (tiles["tri"], tiles["tx"], ty, tiles["t_lo"], tiles["t_hi"],
                 tiles["u_lo"], tiles["u_hi"], tiles["v_lo"], tiles["v_hi"], tiles["z_lo"],
                 tiles["z_hi"], tiles["noread"], tiles.get("lines", _NO_LINES), tiles.get("mask", _NO_MASKS),
-                self.tile_size, s.width, s.height, s.spp, *self.layout(),
+                self.tile_size, s.width, s.height, s.spp, *self.layout(), s.row0,
                 t.p0_32, t.dp_32, t.l0_32, t.dl_32, t.edge_eps, self.backface_culling, self.specialize,
                 out["tri"], out["pix"], out["sidx"], out["z"], out["b0"], out["b1"], out["b2"], out["noread"],
                 ops, events)
 
     def run(self, tiles: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+        self.use_rows_of(tiles)
         s = self.samples
         ts = self.tile_size
         n = len(tiles["tri"])
@@ -1066,4 +1089,7 @@ class SampleTester:
         ops[OP_RCP] += m * COVER_OPS_RCP
         ops[OP_MUL] += m * COVER_OPS_MUL
         ops[OP_MADD] += m * COVER_OPS_MADD
-        return {k: v[:m].copy() for k, v in out.items()}, ops, events
+        res = {k: v[:m].copy() for k, v in out.items()}
+        if s.row0:  # the kernel numbers pixels from the region's first row
+            res["pix"] += np.int32(s.row0 * s.width)
+        return res, ops, events

@@ -24,6 +24,7 @@ import numba as nb
 import numpy as np
 
 from pipeline_sim.counters import N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+from pipeline_sim.regions import RegionSamples, samples_for_row
 from pipeline_sim.shaders import (IN_B, IN_DEPTH, IN_MATERIAL, IN_NX, IN_NY, IN_NZ, IN_OBJECT, IN_PX, IN_R,
                                   IN_T, IN_T_HI, IN_T_LO, IN_TRIANGLE, IN_U, IN_U_HI, IN_U_LO, IN_V, IN_V_HI,
                                   IN_V_LO, IN_X, IN_Y, IN_Z_HI, IN_Z_LO, N_INPUTS)
@@ -211,7 +212,9 @@ class Shading:
         self.config = config
         self.draw = draw
         self.table = table
-        self.samples = samples
+        # a sample set, or the samples of the screen regions, one at a time
+        self.regions = RegionSamples.of(samples) if samples is not None else None
+        self.samples = samples if self.regions is not None and samples is not self.regions else None
         self.shader = shader
         self.params = np.ascontiguousarray(params, dtype=np.float32)
         self.texture = (np.zeros((1, 1, 4), np.float32) if texture is None
@@ -239,9 +242,11 @@ class Shading:
         events = np.zeros(len(EVENTS), np.int64)
         if self.conservative:
             return self._run_conservative(batch, ops, events)
-        s = self.samples
         n = len(batch["tri"])
-        k = batch["pix"].astype(np.int64) * s.spp + batch["sidx"]
+        row = int(batch["pix"][0]) // self.draw.width if n else (self.samples.row0 if self.samples is not None else 0)
+        self.samples = samples_for_row(self.regions, self.samples, row)
+        s = self.samples
+        k = (batch["pix"].astype(np.int64) - s.row0 * s.width) * s.spp + batch["sidx"]
         st, su, sv = s.t[k], s.u[k], s.v[k]
         py, px = np.divmod(batch["pix"], s.width)
         color = np.zeros((n, 4), np.float32)

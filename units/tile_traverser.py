@@ -22,8 +22,9 @@ EV_COARSE, EV_COARSE_REJ, EV_EMIT = range(len(EVENTS))
 
 @nb.njit(cache=True)
 def traverse_kernel(ids, bounds, t_span, p0, dp, l0, dl, tile_size, coarse_factor, coarse_test, width, height,
-                    out_tri, out_tx, out_ty, ops, events):
-    """Emit (triangle, tile) records for ``ids``; returns the number written.
+                    row_lo, row_hi, out_tri, out_tx, out_ty, ops, events):
+    """Emit (triangle, tile) records for ``ids`` within rows ``[row_lo, row_hi)``
+    (a screen region, on coarse-tile rows); returns the number written.
 
     Coarse tiles are tested against the moving 2DH box (002 §4.1, eq. 1-2).
     """
@@ -33,8 +34,8 @@ def traverse_kernel(ids, bounds, t_span, p0, dp, l0, dl, tile_size, coarse_facto
         tri = ids[b]
         bx0 = bounds[tri, 0]
         bx1 = bounds[tri, 1]
-        by0 = bounds[tri, 2]
-        by1 = bounds[tri, 3]
+        by0 = max(bounds[tri, 2], row_lo)
+        by1 = min(bounds[tri, 3], row_hi)
         ta = t_span[tri, 0]
         tb = t_span[tri, 1]
         for cy in range(by0 // ctile, (by1 - 1) // ctile + 1):
@@ -77,17 +78,25 @@ class TileTraverser:
         self.width = width
         self.height = height
 
-    def run(self, ids: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
-        """Traverse the triangles ``ids``; return tile records (tri, tx, ty)."""
+    def run(self, ids: np.ndarray, rows: tuple[int, int] | None = None) -> tuple[dict[str, np.ndarray], np.ndarray,
+                                                                                 np.ndarray]:
+        """Traverse the triangles ``ids`` over rows ``[r0, r1)`` (default: the
+        whole frame); return tile records (tri, tx, ty)."""
         t = self.table
         ts = self.tile_size
+        r0, r1 = rows if rows is not None else (0, self.height)
+        if r0 % (ts * self.config.coarse_factor) or (r1 % (ts * self.config.coarse_factor) and r1 != self.height):
+            raise ValueError(f"rows {r0}..{r1} do not start and end on coarse-tile rows")
         b = t.bounds[ids]
-        cap = int(np.sum(((b[:, 1] - 1) // ts - b[:, 0] // ts + 1) * ((b[:, 3] - 1) // ts - b[:, 2] // ts + 1)))
+        y0 = np.maximum(b[:, 2], r0)
+        y1 = np.minimum(b[:, 3], r1)
+        ny = np.where(y1 > y0, (y1 - 1) // ts - y0 // ts + 1, 0)
+        cap = int(np.sum(((b[:, 1] - 1) // ts - b[:, 0] // ts + 1) * ny))
         out_tri = np.empty(cap, np.int32)
         out_tx = np.empty(cap, np.int32)
         out_ty = np.empty(cap, np.int32)
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
         n = traverse_kernel(ids, t.bounds, t.t_span, t.p0, t.dp, t.l0, t.dl, ts, self.config.coarse_factor,
-                            self.coarse_test, self.width, self.height, out_tri, out_tx, out_ty, ops, events)
+                            self.coarse_test, self.width, self.height, r0, r1, out_tri, out_tx, out_ty, ops, events)
         return {"tri": out_tri[:n], "tx": out_tx[:n], "ty": out_ty[:n]}, ops, events

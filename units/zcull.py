@@ -160,5 +160,9 @@ class ZCull:
     def refresh(self, pix: np.ndarray, samples, depth: np.ndarray, events: np.ndarray) -> None:
         """Refresh the boxes of the tiles touched by ``pix`` (called by the ROP)."""
         if self.active and len(pix):
-            refresh_kernel(pix, self.width, samples.spp, self.tile_size, self.tiles_x, self.nt, self.nl,
-                           samples.t, samples.u, samples.v, depth, self.zmax, self.mark, events)
+            # ``samples`` and ``depth`` hold rows from samples.row0, a tile row
+            # (the screen region the ROP is working on): index the tiles from there
+            first = samples.row0 // self.tile_size * self.tiles_x
+            local = pix - samples.row0 * self.width if samples.row0 else pix
+            refresh_kernel(local, self.width, samples.spp, self.tile_size, self.tiles_x, self.nt, self.nl,
+                           samples.t, samples.u, samples.v, depth, self.zmax[first:], self.mark[first:], events)

@@ -1,0 +1,165 @@
+"""Screen regions: the plan, the bins and region-by-region rendering against whole frames."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pipeline_sim.config import load_arch
+from pipeline_sim.regions import RegionPlan, RegionSamples, bin_triangles, plan_regions, row_step
+from pipeline_sim.render import render_scene
+from pipeline_sim.sampling import make_samples
+from pipeline_sim.scene import load_scene
+
+
+@given(width=st.integers(1, 400), height=st.integers(1, 400), spp=st.integers(1, 64),
+       budget=st.integers(0, 1 << 20), step=st.sampled_from([1, 4, 16, 48, 64]))
+def test_plan_cuts_whole_steps_within_budget(width, height, spp, budget, step):
+    plan = plan_regions(width, height, spp, budget, step)
+    cover = [plan.bounds(r) for r in range(plan.count)]
+    assert cover[0][0] == 0 and cover[-1][1] == height
+    assert all(a[1] == b[0] for a, b in zip(cover, cover[1:]))  # contiguous, no overlap
+    assert all(r1 > r0 for r0, r1 in cover)
+    if plan.count > 1:
+        assert budget > 0
+        assert plan.rows % step == 0  # boundaries on whole steps
+        # within the budget unless a single step is already larger
+        assert plan.rows * width * spp <= budget or plan.rows == step
+        # as large as the budget allows
+        assert (plan.rows + step) * width * spp > budget
+    for row in range(0, height, max(1, height // 7)):
+        r0, r1 = plan.bounds(plan.region_of_row(row))
+        assert r0 <= row < r1
+
+
+def test_row_step_meets_the_shading_grid():
+    assert row_step(4, 4, None) == 16
+    assert row_step(4, 4, 1.0) == 16
+    assert row_step(4, 4, 3.0) == 48
+    assert row_step(4, 4, 2.5) == 80  # grid rows at multiples of 2.5: 80 = 32 x 2.5
+    assert row_step(1, 1, 1.0 / 3.0) == 1
+    assert row_step(4, 4, np.pi) == 0  # no common row: one region
+
+
+@settings(max_examples=60)
+@given(st.data())
+def test_bins_hold_exactly_the_triangles_that_reach_a_region(data):
+    height = data.draw(st.integers(1, 300))
+    rows = data.draw(st.integers(1, 64))
+    plan = RegionPlan(50, height, rows)
+    n = data.draw(st.integers(0, 40))
+    y0 = np.array(data.draw(st.lists(st.integers(0, height), min_size=n, max_size=n)), np.int32)
+    y1 = np.array(data.draw(st.lists(st.integers(0, height), min_size=n, max_size=n)), np.int32)
+    bounds = np.zeros((n, 4), np.int32)
+    bounds[:, 2], bounds[:, 3] = y0, y1
+    ids = np.arange(n, dtype=np.int64)
+    bins = bin_triangles(bounds, ids, plan)
+    assert len(bins) == plan.count
+    seen = np.zeros(n, int)
+    for r, b in enumerate(bins):
+        assert np.all(np.diff(b) > 0)  # submission order
+        r0, r1 = plan.bounds(r)
+        for tri in ids:
+            reaches = y0[tri] < r1 and y1[tri] > r0  # brute force: the row ranges overlap
+            if y1[tri] > y0[tri]:
+                assert (tri in b) == reaches, (tri, r)
+        seen[b] += 1
+    assert np.all(seen >= 1)  # every triangle reaches setup, empty bounds too
+
+
+def test_region_samples_are_slices_of_the_frame_and_come_back_identical():
+    width, height, spp = 24, 40, 8
+    whole = make_samples(width, height, spp, 5, lens=True, motion=True)
+    plan = RegionPlan(width, height, 16)
+
+    def make(rows):
+        return make_samples(width, height, spp, 5, lens=True, motion=True, rows=rows)
+
+    regions = RegionSamples(plan, make, keep=1)
+    order = [0, 1, 2, 0, 2]  # with keep=1 each request after the first drops the previous set
+    for r in order:
+        s = regions.region(r)
+        r0, r1 = plan.bounds(r)
+        assert (s.row0, s.height) == (r0, r1 - r0)
+        k = slice(r0 * width * spp, r1 * width * spp)
+        for name in ("x", "y", "u", "v", "t"):
+            np.testing.assert_array_equal(getattr(s, name), getattr(whole, name)[k])
+    assert regions.made == len(order)
+    assert regions.for_row(39) is regions.region(2)
+
+
+def _small(root, name, **image):
+    scene = load_scene(root / f"workloads/scenes/{name}.toml")
+    return scene.replace(image=dataclasses.replace(scene.image, **image))
+
+
+CASES = {
+    "hierarchical": {},
+    "two_stage": {"tile_test.algorithm": "two_stage"},
+    "interleave_uvt": {"tile_test.algorithm": "interleave_uvt", "pipeline.sample_pattern": "interleave"},
+    "shading_rate_3": {"shading.shading_rate": 3.0, "tile_test.algorithm": "bbox"},
+    "per_sample_quadratic": {"shading.mode": "per_sample", "tile_test.edge_solver": "quadratic"},
+    "conservative": {"pipeline.mode": "conservative"},
+}
+
+
+def _arch(overrides: dict, region_samples: int, zcull: bool):
+    arch = load_arch()
+    for key, value in {**overrides, "pipeline.region_samples": region_samples, "zcull.enabled": zcull}.items():
+        section, name = key.split(".")
+        setattr(getattr(arch, section), name, value)
+    arch.validate()
+    return arch
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_regions_render_the_whole_frames_image_and_counters(root, case):
+    """Region by region gives the whole frame's image and per-sample depth.
+    With z-cull off every counter matches too, but for the traverser's
+    triangle records (a triangle enters it once per region it reaches) and the
+    shading cache's: its grid lives in the reference view, where a moving or
+    defocused triangle's cell can take samples from two regions, so hits and
+    misses follow the order."""
+    scene = _small(root, "default", width=120, height=72, spp=4)
+    whole = render_scene(scene, _arch(CASES[case], 0, zcull=False))
+    assert whole.regions.count == 1
+    budget = 120 * whole.depth.shape[2] * 20  # about 20 rows a region
+    cut = render_scene(scene, _arch(CASES[case], budget, zcull=False), keep_depth=True)
+    assert cut.regions.count >= 2
+    np.testing.assert_array_equal(cut.image, whole.image)
+    np.testing.assert_array_equal(cut.depth, whole.depth)
+    a = whole.counters.set_index(["unit", "counter"]).value
+    b = cut.counters.set_index(["unit", "counter"]).value
+    differ = set(a.index[a != b])
+    allowed = {("tile_traverser", "records_in")}
+    if cut.counter("shading", "lookups"):
+        allowed |= {i for i in a.index if i[0] == "shading"}
+    assert differ <= allowed, sorted(differ - allowed)
+    assert cut.counter("tile_traverser", "records_in") >= whole.counter("tile_traverser", "records_in")
+    assert cut.samples is None and whole.samples is not None
+
+
+def test_regions_with_zcull_keep_the_image(root):
+    """With z-cull the culled tiles depend on what the ROP has written when a
+    tile arrives, so counters may change with the order; the image may not."""
+    scene = _small(root, "default", width=160, height=90, spp=4)
+    whole = render_scene(scene, _arch({}, 0, zcull=True))
+    for budget in (160 * 4 * 16, 160 * 4 * 40):
+        cut = render_scene(scene, _arch({}, budget, zcull=True), keep_depth=True)
+        assert cut.regions.count > 1
+        np.testing.assert_array_equal(cut.image, whole.image)
+        np.testing.assert_array_equal(cut.depth, whole.depth)
+        assert cut.counter("zcull", "tiles_tested") == whole.counter("zcull", "tiles_tested")
+    assert cut.depth is not None
+    assert render_scene(scene, _arch({}, 160 * 4 * 16, zcull=True)).depth is None  # not kept by default
+
+
+def test_region_size_is_checked(tmp_path):
+    from pipeline_sim.errors import UserError
+
+    arch = load_arch()
+    arch.pipeline.region_samples = -1
+    with pytest.raises(UserError, match="region_samples"):
+        arch.validate()
