@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from pipeline_sim.errors import UserError, did_you_mean, unknown_key_error
+from pipeline_sim.sampling import PATTERNS
 
 DEFAULT_ARCH_PATH = Path(__file__).with_name("data") / "default_arch.toml"
 
@@ -32,7 +33,8 @@ BLEND_MODES = ("replace", "add", "min", "max")
 # raster per (u, v, t) tuple of a fixed set (Fatahalian et al. 2009)
 TILE_TEST_ALGORITHMS = ("hierarchical", "bbox", "hull", "dual_space", "two_stage", "interleave_uvt")
 EDGE_SOLVERS = ("linearized", "quadratic")
-SAMPLE_PATTERNS = ("net", "sobol", "stratified", "random", "interleave")
+# an architecture names a generated pattern; a sample table comes with a pass
+SAMPLE_PATTERNS = tuple(p for p in PATTERNS if p != "table")
 
 
 @dataclass

@@ -43,6 +43,7 @@ import numpy as np
 from pipeline_sim.errors import UserError, did_you_mean
 
 __all__ = [
+    "PATTERNS",
     "SampleSet",
     "interleave_groups",
     "interleave_tuple_set",
@@ -61,7 +62,8 @@ __all__ = [
 MAX_SPP = 1 << 16
 #: Fixed-point precision of generated coordinates (float32 mantissa).
 _FRAC_BITS = 24
-_PATTERNS = ("net", "random", "stratified", "sobol", "table", "interleave")
+#: Sample patterns :func:`make_samples` generates; "table" also needs the user's table.
+PATTERNS = ("net", "random", "stratified", "sobol", "table", "interleave")
 _LENS_SHAPES = ("disk", "square")
 _TABLE_COLUMNS = ("x", "y", "u", "v", "t")
 _MASK64 = (1 << 64) - 1
@@ -629,10 +631,10 @@ def make_samples(
     spp = _check_int("spp", spp, 1, MAX_SPP)
     seed = _check_int("seed", seed, 0, _MASK64)
     lens, motion, scramble_table = bool(lens), bool(motion), bool(scramble_table)
-    if pattern not in _PATTERNS:
+    if pattern not in PATTERNS:
         raise UserError(
-            f"sample pattern: unknown pattern '{pattern}'{did_you_mean(str(pattern), _PATTERNS)};"
-            f" known: {', '.join(_PATTERNS)}"
+            f"sample pattern: unknown pattern '{pattern}'{did_you_mean(str(pattern), PATTERNS)};"
+            f" known: {', '.join(PATTERNS)}"
         )
     if lens_shape not in _LENS_SHAPES:
         raise UserError(

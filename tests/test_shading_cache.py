@@ -299,7 +299,7 @@ def _shading_unit(cfg, ref, width, height, spp, shader, rng):
     # request's barycentrics gives the homogeneous shading point
     draw.color = ref.astype(np.float32).copy()
     npix = width * height
-    samples = SimpleNamespace(spp=spp, width=width, height=height,
+    samples = SimpleNamespace(spp=spp, width=width, height=height, row0=0,
                               x=rng.random(npix * spp).astype(np.float32),
                               y=rng.random(npix * spp).astype(np.float32),
                               u=rng.uniform(-1, 1, npix * spp).astype(np.float32),
