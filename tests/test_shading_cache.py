@@ -16,6 +16,8 @@ from types import SimpleNamespace
 import numba as nb
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from pipeline_sim.config import ShadingConfig, load_arch
 from pipeline_sim.counters import N_OPS
@@ -23,7 +25,8 @@ from pipeline_sim.draw import draw_from_clip
 from pipeline_sim.render import RenderPass, run_pass
 from pipeline_sim.shaders import (IN_B, IN_G, IN_R, IN_T, IN_TRIANGLE, IN_U, IN_V, IN_X, IN_Y, N_INPUTS,
                                   standard_shader)
-from units.shading_cache import EVENTS, REPL_FIFO, REPL_LRU, Shading, cache_kernel
+from units.shading_cache import (EVENTS, REPL_FIFO, REPL_LRU, Shading, cache_kernel, first_sample_of_request,
+                                 store_requests)
 
 EV = {name: i for i, name in enumerate(EVENTS)}
 
@@ -477,3 +480,30 @@ def test_triangles_behind_reference_camera_keep_their_own_color():
     assert big.image[:, 16:, 1].sum() > 10 and big.image[:, 16:, 0].sum() == 0
     small = run_pass(RenderPass(draw=draw, arch=load_arch(overrides=["pipeline.samples_per_batch=1"]), spp=16))
     np.testing.assert_array_equal(small.image, big.image)
+
+
+@given(st.lists(st.integers(-1, 6), min_size=0, max_size=60))
+def test_first_sample_of_request_against_a_search(refs):
+    sample_req = np.array(refs, np.int32)
+    nreq = int(sample_req.max(initial=-1)) + 1
+    first = np.empty(nreq, np.int64)
+    first_sample_of_request(sample_req, first)
+    for r in range(nreq):
+        hits = [i for i, q in enumerate(refs) if q == r]
+        assert first[r] == (hits[0] if hits else -1)
+
+
+@given(st.lists(st.integers(-1, 5), min_size=0, max_size=40))
+def test_store_requests_keeps_each_entrys_last_request(entries):
+    req_entry = np.array(entries, np.int32)
+    shaded = np.arange(4 * len(entries), dtype=np.float32).reshape(-1, 4)
+    entry_color = np.full((6, 4), -7.0, np.float32)
+    entry_req = np.full(6, 3, np.int32)
+    store_requests(req_entry, shaded, entry_color, entry_req)
+    for e in range(6):
+        last = max((r for r, q in enumerate(entries) if q == e), default=None)
+        if last is None:  # untouched
+            assert np.all(entry_color[e] == -7.0) and entry_req[e] == 3
+        else:
+            np.testing.assert_array_equal(entry_color[e], shaded[last])
+            assert entry_req[e] == -1

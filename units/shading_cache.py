@@ -164,6 +164,30 @@ def cache_kernel(tri, b0, b1, b2, ref, rate, grid_w, grid_h, tags, stamps, entry
 
 
 @nb.njit(cache=True)
+def first_sample_of_request(sample_req, first):
+    """``first[r]``: the first sample of the batch that points at request ``r``
+    (every request is made by a sample, so each gets one)."""
+    first[:] = -1
+    for i in range(sample_req.shape[0]):
+        r = sample_req[i]
+        if r >= 0 and first[r] < 0:
+            first[r] = i
+
+
+@nb.njit(cache=True)
+def store_requests(req_entry, shaded, entry_color, entry_req):
+    """Store each request's color in its cache entry (-1: uncached, no grid
+    cell); requests in order, so an entry refilled within the batch keeps its
+    last request's color. The entry then holds a color, no pending request."""
+    for r in range(req_entry.shape[0]):
+        e = req_entry[r]
+        if e >= 0:
+            for c in range(4):
+                entry_color[e, c] = shaded[r, c]
+            entry_req[e] = -1
+
+
+@nb.njit(cache=True)
 def interpolate_kernel(req_tri, req_l, req_t, req_u, req_v, req_x, req_y, req_depth,
                        pos, nrm, color, material, object_id, inputs, ops):
     """Perspective-correct attribute interpolation for shading requests (002 §8 'interpolation setup')."""
@@ -246,8 +270,6 @@ class Shading:
         row = int(batch["pix"][0]) // self.draw.width if n else (self.samples.row0 if self.samples is not None else 0)
         self.samples = samples_for_row(self.regions, self.samples, row)
         s = self.samples
-        k = (batch["pix"].astype(np.int64) - s.row0 * s.width) * s.spp + batch["sidx"]
-        st, su, sv = s.t[k], s.u[k], s.v[k]
         py, px = np.divmod(batch["pix"], s.width)
         color = np.zeros((n, 4), np.float32)
         if self.cached:
@@ -260,11 +282,9 @@ class Shading:
                 self.grid_w, self.grid_h, self.tags, self.stamps, self.entry_req, self.entry_color, self.clock,
                 REPL_LRU if self.config.replacement == "lru" else REPL_FIFO, color, sample_req, req_entry,
                 req_tri, req_l, ops, events)
-            first = np.full(nreq, -1, np.int64)
+            first = np.empty(nreq, np.int64)
+            first_sample_of_request(sample_req, first)
             has = sample_req >= 0
-            idx = np.nonzero(has)[0]
-            first_idx = np.unique(sample_req[idx], return_index=True)[1]
-            first[:] = idx[first_idx]
             half = np.full(nreq, 0.5, np.float32)
             zero = np.zeros(nreq, np.float32)
             inputs = np.zeros((N_INPUTS, nreq), np.float32)
@@ -274,12 +294,10 @@ class Shading:
                                self.draw.material, self.draw.object_id, inputs, ops)
             shaded = self._shade(inputs)
             color[has] = shaded[sample_req[has]]
-            # an entry refilled within the batch keeps its last request's color
-            entries, last = np.unique(req_entry[:nreq][::-1], return_index=True)
-            cached = entries >= 0  # -1: shaded uncached (no grid cell)
-            self.entry_color[entries[cached]] = shaded[nreq - 1 - last[cached]]
-            self.entry_req[entries[cached]] = -1
+            store_requests(req_entry[:nreq], shaded, self.entry_color, self.entry_req)
         else:
+            k = (batch["pix"].astype(np.int64) - s.row0 * s.width) * s.spp + batch["sidx"]
+            st, su, sv = s.t[k], s.u[k], s.v[k]
             req_l = np.stack([batch["b0"], batch["b1"], batch["b2"]]).astype(np.float64)
             inputs = np.zeros((N_INPUTS, n), np.float32)
             interpolate_kernel(batch["tri"], req_l, st, su, sv,
