@@ -30,10 +30,12 @@ DEPTH_LEVELS = np.array([0.0, 0.25, 0.5, 0.75, 1.0], np.float32)  # few levels: 
 
 def reference_rop(frags, spp, func, depth_write, blend, depth, color):
     """Sequential per-fragment reference. Mutates ``depth`` (list of float32) and
-    ``color`` (list of 4-lists of float32). Returns a dict of counts."""
+    ``color`` (list of 4-lists of float32). Returns a dict of counts, with
+    "prior": per fragment, the depth it replaced (NaN: it wrote none)."""
     cmp = DEPTH_CMP[func]
     cnt = dict(depth_tests=0, depth_passed=0, depth_reads_skipped=0, samples_written=0,
                depth_reads=0, depth_writes=0, color_reads=0, color_writes=0)
+    prior = []
     for pix, sidx, z, col, noread in frags:
         slot = pix * spp + sidx
         cnt["depth_tests"] += 1
@@ -41,10 +43,12 @@ def reference_rop(frags, spp, func, depth_write, blend, depth, color):
             cnt["depth_reads_skipped"] += 1
         else:
             cnt["depth_reads"] += 1
+        prior.append(np.float32(np.nan))
         if not cmp(np.float32(z), depth[slot]):
             continue
         cnt["depth_passed"] += 1
         if depth_write:
+            prior[-1] = depth[slot]
             depth[slot] = np.float32(z)
             cnt["depth_writes"] += 1
         old = color[slot]
@@ -63,7 +67,7 @@ def reference_rop(frags, spp, func, depth_write, blend, depth, color):
         cnt["samples_written"] += 1
     cnt["bytes_read"] = 4 * cnt["depth_reads"] + 16 * cnt["color_reads"]
     cnt["bytes_written"] = 4 * cnt["depth_writes"] + 16 * cnt["color_writes"]
-    return cnt
+    return cnt, np.array(prior, np.float32)
 
 
 def random_frags(rng, n, npix, spp):
@@ -101,9 +105,11 @@ def test_rop_kernel_matches_sequential_reference(func, blend, depth_write):
         # several kernel calls carry buffer state, like consecutive batches
         for batch in range(3):
             frags = random_frags(rng, 80, npix, spp)
+            prior = np.empty(80, np.float32)
             rop_kernel(*frags, spp, 0, DEPTH_FUNCS.index(func), depth_write, BLEND_MODES.index(blend),
-                       depth_buf, color_buf, ops, events, traffic)
-            cnt = reference_rop(as_frag_list(*frags), spp, func, depth_write, blend, ref_depth, ref_color)
+                       depth_buf, color_buf, prior, ops, events, traffic)
+            cnt, ref_prior = reference_rop(as_frag_list(*frags), spp, func, depth_write, blend, ref_depth, ref_color)
+            np.testing.assert_array_equal(prior, ref_prior)
             total = cnt if total is None else {k: total[k] + cnt[k] for k in total}
         np.testing.assert_array_equal(depth_buf, np.array(ref_depth, np.float32))
         np.testing.assert_array_equal(color_buf, np.array(ref_color, np.float32))
@@ -183,7 +189,7 @@ def test_rop_class_batches_and_counters(func, blend):
         assert out is None
         sums += ev
         bytes_rw += traffic
-        cnt = reference_rop(as_frag_list(*frags), spp, func, True, blend, ref_depth, ref_color)
+        cnt, _ = reference_rop(as_frag_list(*frags), spp, func, True, blend, ref_depth, ref_color)
         ref_tot = cnt if ref_tot is None else {k: ref_tot[k] + cnt[k] for k in ref_tot}
     assert dict(zip(EVENTS, sums.tolist())) == {k: ref_tot[k] for k in EVENTS}
     assert bytes_rw.tolist() == [ref_tot["bytes_read"], ref_tot["bytes_written"]]

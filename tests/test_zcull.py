@@ -5,18 +5,24 @@ Culled (triangle, tile) records are brute-forced: every sample of the tile is
 run through the sample tester's exact ``inside_test`` and, if covered, must
 fail the depth test against the depth buffer as it was when z-cull culled the
 record (captured at that moment). Records flagged "no depth read" must pass it.
+The ROP's refresh of the boxes is compared with a brute-force scan of the
+depth buffer after every batch.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import pytest
 
 import pipeline_sim.render as render
 import units.zcull as zc
-from pipeline_sim.config import load_arch
+from pipeline_sim.config import RopConfig, load_arch
 from pipeline_sim.draw import draw_from_clip
+from pipeline_sim.regions import RegionPlan, RegionSamples
 from pipeline_sim.render import RenderPass, run_pass
+from pipeline_sim.sampling import make_samples
 from units.rop import Rop
 from units.sample_tester import inside_test
 from units.triangle_setup import TriangleSetup
@@ -201,3 +207,85 @@ def test_box_knobs_do_not_change_image(scene, reference_image, slices, boxes):
     np.testing.assert_array_equal(res.image, reference_image.image)
     np.testing.assert_array_equal(res.depth, reference_image.depth)
     assert culled(res) > 0
+
+
+def brute_zmax(samples, depth, tile_size, nt, nl):
+    """Per tile of ``samples``' rows (tile-row-major) and box: the first largest
+    depth in the tile's row-major sample order (-inf for a box without samples)."""
+    w, spp = samples.width, samples.spp
+    tiles_x = -(-w // tile_size)
+    tiles_y = -(-samples.height // tile_size)
+    out = np.full((tiles_x * tiles_y, nt * nl * nl), -np.inf, np.float32)
+    for ty in range(tiles_y):
+        for tx in range(tiles_x):
+            for y in range(ty * tile_size, min((ty + 1) * tile_size, samples.height)):
+                for x in range(tx * tile_size, min((tx + 1) * tile_size, w)):
+                    for k in range((y * w + x) * spp, (y * w + x + 1) * spp):
+                        it = min(nt - 1, int(np.floor(float(samples.t[k]) * nt)))
+                        iu = min(nl - 1, max(0, int(np.floor((float(samples.u[k]) + 1.0) * 0.5 * nl))))
+                        iv = min(nl - 1, max(0, int(np.floor((float(samples.v[k]) + 1.0) * 0.5 * nl))))
+                        box = (it * nl + iu) * nl + iv
+                        if depth[k] > out[ty * tiles_x + tx, box]:
+                            out[ty * tiles_x + tx, box] = depth[k]
+    return out
+
+
+@pytest.mark.parametrize("func,depth_write,slices,boxes,rows", [
+    ("less", True, 4, 2, 4), ("lequal", True, 4, 2, 8), ("lequal", True, 2, 3, 12),
+    ("less", False, 4, 2, 8), ("lequal", True, 1, 1, 4)])
+def test_refresh_matches_brute_force_after_every_batch(func, depth_write, slices, boxes, rows):
+    """Many small batches over few tiles and depth levels (ties, +0 and -0): after
+    each batch, the touched tiles' boxes are those of a full scan of the depth
+    buffer, bit for bit, and every other tile's are unchanged."""
+    rng = np.random.default_rng(slices * 10 + boxes + rows + depth_write)
+    w, h, spp, ts = 10, 12, 4, 4
+    arch = load_arch()
+    cfg = dataclasses.replace(arch.zcull, time_slices=slices, lens_boxes=boxes)
+    plan = RegionPlan(w, h, rows)
+    regions = RegionSamples(plan, lambda r: make_samples(w, h, spp, 5, lens=True, motion=True, rows=r))
+    zcull = zc.ZCull(cfg, func, ts, w, h, 1.0)
+    rop = Rop(RopConfig(depth_test=func, depth_write=depth_write), w, h, spp, (0, 0, 0, 1), 1.0, zcull, regions,
+              plan=plan)
+    levels = np.array([0.0, -0.0, 0.25, 0.5, 0.5, 0.75, 1.0], np.float32)
+    for region in range(plan.count):
+        r0, r1 = plan.bounds(region)
+        samples = regions.region(region)
+        t0 = r0 // ts * zcull.tiles_x
+        for _ in range(12):
+            n = int(rng.integers(1, 40))
+            pix = rng.integers(r0 * w, r1 * w, n).astype(np.int32)
+            batch = dict(pix=pix, sidx=rng.integers(0, spp, n).astype(np.int32),
+                         z=levels[rng.integers(0, len(levels), n)], color=np.ones((n, 4), np.float32),
+                         noread=np.zeros(n, np.bool_))
+            before = zcull.zmax.copy()
+            rop.run(batch)
+            py, px = pix // w, pix % w
+            touched = np.unique((py // ts) * zcull.tiles_x + px // ts)
+            assert rop.zcull_refresh_events[zc.EV_REFRESH] == len(touched)
+            expect = before.copy()
+            expect[touched] = brute_zmax(samples, rop.depth, ts, slices, boxes)[touched - t0]
+            np.testing.assert_array_equal(zcull.zmax.view(np.uint32), expect.view(np.uint32))
+
+
+def test_refresh_rescans_a_new_depth_buffer():
+    """A tile refreshed from one depth buffer and then from another (a region
+    drawn again with fresh buffers) gets the boxes of the new buffer."""
+    w, h, spp, ts = 8, 4, 4, 4
+    samples = make_samples(w, h, spp, 3, lens=True, motion=True)
+    zcull = zc.ZCull(load_arch().zcull, "less", ts, w, h, 1.0)
+    pix = np.arange(w * h, dtype=np.int32).repeat(spp)
+    sidx = np.tile(np.arange(spp, dtype=np.int32), w * h)
+    events = np.zeros(len(zc.EVENTS), np.int64)
+    first = np.random.default_rng(1).random(w * h * spp).astype(np.float32) * 0.5
+    prior = np.ones(len(pix), np.float32)  # every sample written from the clear depth
+    zcull.refresh(pix, sidx, prior, samples, first, events)
+    np.testing.assert_array_equal(zcull.zmax, brute_zmax(samples, first, ts, zcull.nt, zcull.nl))
+    cleared = np.ones_like(first)
+    cleared[:spp] = 0.25
+    prior = np.full(len(pix), np.nan, np.float32)
+    prior[:spp] = 1.0
+    zcull.refresh(pix[:spp], sidx[:spp], prior[:spp], samples, cleared, events)
+    expect = brute_zmax(samples, cleared, ts, zcull.nt, zcull.nl)
+    np.testing.assert_array_equal(zcull.zmax[0], expect[0])
+    np.testing.assert_array_equal(zcull.zmax[1], brute_zmax(samples, first, ts, zcull.nt, zcull.nl)[1])
+    assert events[zc.EV_REFRESH] == 2 + 1

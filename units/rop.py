@@ -29,17 +29,17 @@ COLOR_BYTES = 16
 
 
 @nb.njit(cache=True)
-def rop_kernel(pix, sidx, z, color, noread, spp, pix0, func, depth_write, blend, depth_buf, color_buf, ops, events,
-               traffic):
-    """Depth test and blend each sample in order (PIPELINE §2.7); the buffers start at pixel ``pix0``."""
+def rop_kernel(pix, sidx, z, color, noread, spp, pix0, func, depth_write, blend, depth_buf, color_buf, prior, ops,
+               events, traffic):
+    """Depth test and blend each sample in order (PIPELINE §2.7); the buffers start at pixel ``pix0``.
+
+    ``prior[i]`` gets the depth record ``i`` replaced, NaN where it wrote no depth."""
+    skipped = 0
+    passed = 0
     for i in range(pix.shape[0]):
         k = (pix[i] - pix0) * spp + sidx[i]
         d = z[i]
-        events[EV_TESTS] += 1
-        if noread[i]:
-            events[EV_SKIPPED] += 1
-        else:
-            traffic[0] += 4
+        skipped += noread[i]
         old = depth_buf[k]
         if func == 0:
             ok = d < old
@@ -55,18 +55,17 @@ def rop_kernel(pix, sidx, z, color, noread, spp, pix0, func, depth_write, blend,
             ok = True
         else:
             ok = False
-        ops[OP_CMP] += 1
+        prior[i] = np.nan
         if not ok:
             continue
-        events[EV_PASSED] += 1
+        passed += 1
         if depth_write:
+            prior[i] = old
             depth_buf[k] = d
-            traffic[1] += 4
         if blend == 0:
             for c in range(4):
                 color_buf[k, c] = color[i, c]
         else:
-            traffic[0] += 16
             for c in range(4):
                 if blend == 1:
                     color_buf[k, c] += color[i, c]
@@ -74,9 +73,16 @@ def rop_kernel(pix, sidx, z, color, noread, spp, pix0, func, depth_write, blend,
                     color_buf[k, c] = min(color_buf[k, c], color[i, c])
                 else:
                     color_buf[k, c] = max(color_buf[k, c], color[i, c])
-            ops[OP_ADD] += 4
-        traffic[1] += 16
-        events[EV_WRITTEN] += 1
+    n = pix.shape[0]
+    blended = passed if blend != 0 else 0
+    events[EV_TESTS] += n
+    events[EV_SKIPPED] += skipped
+    events[EV_PASSED] += passed
+    events[EV_WRITTEN] += passed
+    ops[OP_CMP] += n
+    ops[OP_ADD] += 4 * blended
+    traffic[0] += DEPTH_BYTES * (n - skipped) + COLOR_BYTES * blended
+    traffic[1] += (DEPTH_BYTES * passed if depth_write else 0) + COLOR_BYTES * passed
 
 
 class Rop:
@@ -140,11 +146,13 @@ class Rop:
             if region != self.region:  # batches come region by region: this one is done
                 self._resolve_region()
                 self._open(region)
+        prior = np.empty(len(batch["pix"]), np.float32)
         rop_kernel(batch["pix"], batch["sidx"], batch["z"], batch["color"], batch["noread"], self.spp, self.pix0,
-                   self.func, self.config.depth_write, self.blend, self.depth, self.color, ops, events, traffic)
+                   self.func, self.config.depth_write, self.blend, self.depth, self.color, prior, ops, events,
+                   traffic)
         if self.zcull is not None:
             zev = np.zeros(len(self.zcull.events), np.int64)
-            self.zcull.refresh(batch["pix"], self.samples, self.depth, zev)
+            self.zcull.refresh(batch["pix"], batch["sidx"], prior, self.samples, self.depth, zev)
             self.zcull_refresh_events = zev
         return None, ops, events, traffic
 

@@ -12,6 +12,8 @@ a stale box only makes the test looser, never wrong.
 
 from __future__ import annotations
 
+import weakref
+
 import numba as nb
 import numpy as np
 
@@ -76,30 +78,54 @@ def zcull_kernel(tri, tx, ty, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, ti
             events[EV_NOREAD] += 1
 
 
-@nb.njit(cache=True)
-def refresh_kernel(pix, width, spp, tile_size, tiles_x, nt, nl, st, su, sv, depth, zmax, mark, events):
-    """Recompute zmax of every tile touched by ``pix`` from the depth buffer.
+@nb.njit(cache=True, inline="always")
+def _sample_box(t, u, v, nt, nl):
+    """The (t, u, v) box holding a sample."""
+    it = min(nt - 1, int(t * nt))
+    iu = min(nl - 1, max(0, int((u + 1.0) * 0.5 * nl)))
+    iv = min(nl - 1, max(0, int((v + 1.0) * 0.5 * nl)))
+    return (it * nl + iu) * nl + iv
 
-    Depths only decrease under a LESS/LEQUAL test with writes, so a zmax read
-    before later writes land stays an upper bound. (zmin is kept by the
-    z-cull test itself, see ``zcull_kernel``.)"""
+
+@nb.njit(cache=True)
+def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st, su, sv, depth, zmax, exact, slot,
+                   box_of, events):
+    """Set zmax of every tile touched by ``pix`` to the largest depth of each box's samples.
+
+    A box that holds no sample gets -inf: nothing there can be covered. The
+    first refresh of a tile from this depth buffer (``exact`` 0) also records
+    each sample's box in ``box_of``. Depths only decrease under a LESS/LEQUAL
+    test, so a tile's boxes can only have changed where a record replaced a
+    depth (``prior``; NaN: none) not below its box's zmax; other tiles keep
+    theirs, which are exactly what a rescan would give. Depths only decreasing
+    also makes a zmax read before later writes land an upper bound. (zmin is
+    kept by the z-cull test itself, see ``zcull_kernel``.)"""
+    n = pix.shape[0]
+    touched = np.empty(n, np.int64)
+    stale = np.empty(n, np.bool_)
     n_touched = 0
-    touched = np.empty(pix.shape[0], np.int64)
-    for i in range(pix.shape[0]):
+    for i in range(n):
         py = pix[i] // width
-        px = pix[i] - py * width
-        tile = (py // tile_size) * tiles_x + px // tile_size
-        if mark[tile] == 0:
-            mark[tile] = 1
+        tile = (py // tile_size) * tiles_x + (pix[i] - py * width) // tile_size
+        if slot[tile] == 0:
             touched[n_touched] = tile
+            stale[n_touched] = exact[tile] == 0
             n_touched += 1
+            slot[tile] = n_touched
+        j = slot[tile] - 1
+        if not stale[j] and prior[i] >= zmax[tile, box_of[pix[i] * spp + sidx[i]]]:
+            stale[j] = True
     height_px = depth.shape[0] // (width * spp)
-    nbox = zmax.shape[1]
     for j in range(n_touched):
         tile = touched[j]
-        mark[tile] = 0
-        for b in range(nbox):
-            zmax[tile, b] = -np.inf
+        slot[tile] = 0
+        events[EV_REFRESH] += 1
+        if not stale[j]:
+            continue
+        fresh = exact[tile] == 0
+        exact[tile] = 1
+        zrow = zmax[tile]
+        zrow[:] = -np.inf
         tyy = tile // tiles_x
         txx = tile - tyy * tiles_x
         for py in range(tyy * tile_size, min((tyy + 1) * tile_size, height_px)):
@@ -107,15 +133,12 @@ def refresh_kernel(pix, width, spp, tile_size, tiles_x, nt, nl, st, su, sv, dept
                 base = (py * width + px) * spp
                 for s in range(spp):
                     k = base + s
-                    it = min(nt - 1, int(st[k] * nt))
-                    iu = min(nl - 1, max(0, int((su[k] + 1.0) * 0.5 * nl)))
-                    iv = min(nl - 1, max(0, int((sv[k] + 1.0) * 0.5 * nl)))
-                    box = (it * nl + iu) * nl + iv
+                    if fresh:
+                        box_of[k] = _sample_box(st[k], su[k], sv[k], nt, nl)
+                    b = box_of[k]
                     d = depth[k]
-                    if d > zmax[tile, box]:
-                        zmax[tile, box] = d
-        # a box that holds no sample stays at -inf: nothing there can be covered
-        events[EV_REFRESH] += 1
+                    z = zrow[b]
+                    zrow[b] = d if d > z else z
 
 
 class ZCull:
@@ -138,7 +161,12 @@ class ZCull:
         ntiles = self.tiles_x * self.tiles_y
         self.zmax = np.full((ntiles, nbox), clear_depth, np.float32)
         self.zmin = np.full((ntiles, nbox), clear_depth, np.float32)
-        self.mark = np.zeros(ntiles, np.int8)
+        # refresh state: per tile, whether zmax is exact for the ROP's current
+        # depth buffer (``_buffer``) and a scratch slot; each sample's box
+        self.exact = np.zeros(ntiles, np.uint8)
+        self.slot = np.zeros(ntiles, np.int64)
+        self.box_of = np.empty(0, np.uint8)
+        self._buffer = None
         self.func = {"less": CULL_LESS, "lequal": CULL_LEQUAL}.get(depth_func, CULL_NONE)
         self.active = bool(config.enabled) and self.func != CULL_NONE
 
@@ -157,12 +185,20 @@ class ZCull:
         out["noread"] = noread[keep]  # depth reads this tile's samples can skip
         return out, ops, events
 
-    def refresh(self, pix: np.ndarray, samples, depth: np.ndarray, events: np.ndarray) -> None:
-        """Refresh the boxes of the tiles touched by ``pix`` (called by the ROP)."""
+    def refresh(self, pix: np.ndarray, sidx: np.ndarray, prior: np.ndarray, samples, depth: np.ndarray,
+                events: np.ndarray) -> None:
+        """Refresh the boxes of the tiles touched by the samples ``pix, sidx`` (called by
+        the ROP after each batch; ``prior``: the depth each one replaced, NaN: none)."""
         if self.active and len(pix):
+            if self._buffer is None or self._buffer() is not depth:
+                # a new depth buffer (the next screen region): its tiles start with a full scan
+                self._buffer = weakref.ref(depth)
+                self.exact[:] = 0
+                self.box_of = np.empty(len(depth), np.uint8)
             # ``samples`` and ``depth`` hold rows from samples.row0, a tile row
             # (the screen region the ROP is working on): index the tiles from there
             first = samples.row0 // self.tile_size * self.tiles_x
             local = pix - samples.row0 * self.width if samples.row0 else pix
-            refresh_kernel(local, self.width, samples.spp, self.tile_size, self.tiles_x, self.nt, self.nl,
-                           samples.t, samples.u, samples.v, depth, self.zmax[first:], self.mark[first:], events)
+            refresh_kernel(local, sidx, prior, self.width, samples.spp, self.tile_size, self.tiles_x, self.nt,
+                           self.nl, samples.t, samples.u, samples.v, depth, self.zmax[first:], self.exact[first:],
+                           self.slot[first:], self.box_of, events)
