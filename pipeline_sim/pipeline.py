@@ -29,20 +29,46 @@ from pipeline_sim.counters import CounterSet
 END = None  # end-of-stream marker
 
 
+class RecordStore(simpy.Store):
+    """A FIFO of ``(ready, batch, records)`` items (and ``END``) bounded in records, not items.
+
+    A put waits until its records fit (a batch of more records than the
+    whole capacity counts as the whole capacity: it waits for an empty
+    FIFO); a get frees its records at once. One event per put and per get,
+    as for a plain store, so counting records costs no extra SimPy events.
+    """
+
+    def __init__(self, env: simpy.Environment, records: int):
+        super().__init__(env)
+        self.records = records
+        self.level = 0  # records held
+
+    def _do_put(self, event) -> None:
+        n = event.item[2] if event.item is not END else 0
+        if self.level + n <= self.records:
+            self.level += n
+            self.items.append(event.item)
+            event.succeed()
+
+    def _do_get(self, event) -> None:
+        if self.items:
+            item = self.items.pop(0)
+            self.level -= item[2] if item is not END else 0
+            event.succeed(item)
+
+
 @dataclass
 class Channel:
     """A bounded FIFO of batches between two stages, with occupancy statistics.
 
-    Bounded either in batches (``room`` is None: the store's capacity) or in
-    records (``room`` holds the free record slots; a batch takes as many as
-    it has records, at most the whole capacity), so that the batch size sets
-    the granularity of the timing without changing the size of the FIFO.
+    Bounded either in batches (a plain store of ``depth`` items) or in records
+    (a ``RecordStore``), so that the batch size sets the granularity of the
+    timing without changing the size of the FIFO.
     """
 
     name: str
     store: simpy.Store
     depth: int
-    room: simpy.Container | None = None
     _last: float = 0.0
     _level: int = 0
     integral: float = 0.0
@@ -88,11 +114,8 @@ def _records(batch: Any) -> int:
 
 
 def _put(env: simpy.Environment, ch: Channel, ready: float, batch: Any):
-    """Put a batch, first waiting for room for its records when the channel counts records."""
-    n = 0
-    if ch.room is not None:
-        n = min(max(_records(batch), 1), int(ch.room.capacity))
-        yield ch.room.get(n)
+    """Put a batch, waiting for room (for its records, when the channel counts records)."""
+    n = min(max(_records(batch), 1), ch.store.records) if isinstance(ch.store, RecordStore) else 0
     yield ch.store.put((ready, batch, n))
 
 
@@ -101,8 +124,6 @@ def _stage_process(env: simpy.Environment, stage: Stage, inp: Channel, out: Chan
         t0 = env.now
         item = yield inp.store.get()
         inp.record(env.now)
-        if item is not END and inp.room is not None:
-            yield inp.room.put(item[2])  # its record slots are free once taken
         if item is END:
             stage.starved += env.now - t0
             stage.mark(t0, env.now, "starved")
@@ -167,8 +188,7 @@ def simulate(stages: list[Stage], source_batches: list[Any], queue_depth: int,
     if capacities is None:
         channels = [Channel(n, simpy.Store(env, capacity=queue_depth), queue_depth) for n in names]
     else:
-        channels = [Channel(n, simpy.Store(env), queue_depth, simpy.Container(env, capacity=cap, init=cap))
-                    for n, cap in zip(names, capacities)]
+        channels = [Channel(n, RecordStore(env, cap), queue_depth) for n, cap in zip(names, capacities)]
     env.process(_source_process(env, source_batches, channels[0]))
     for i, stage in enumerate(stages):
         out = channels[i + 1] if i + 1 < len(channels) else None
