@@ -146,8 +146,9 @@ class RegionSamples:
         return self.region(self.plan.region_of_row(row))
 
 
-def samples_for_row(regions: RegionSamples, held: SampleSet | None, row: int) -> SampleSet:
-    """``held`` if it holds image row ``row``, else the samples of the region that does."""
-    if held is not None and held.row0 <= row < held.row0 + held.height:
+def samples_for_row(regions: RegionSamples, held: SampleSet | None, row: int | None) -> SampleSet:
+    """``held`` if it holds image row ``row``, else the samples of the region
+    that does; ``row`` None (an empty batch): ``held``, or region 0's samples."""
+    if held is not None and (row is None or held.row0 <= row < held.row0 + held.height):
         return held
-    return regions.for_row(row)
+    return regions.for_row(0 if row is None else row)

@@ -1019,8 +1019,7 @@ class SampleTester:
     def use_rows_of(self, tiles: dict[str, np.ndarray]) -> None:
         """Take the samples of the region of this batch's tiles (all in one region)."""
         ty = tiles["ty"]
-        row = int(ty[0]) * self.tile_size if len(ty) else (self.samples.row0 if self.samples is not None else 0)
-        s = samples_for_row(self.regions, self.samples, row)
+        s = samples_for_row(self.regions, self.samples, int(ty[0]) * self.tile_size if len(ty) else None)
         if s is not self.samples:
             if s.row0 % self.tile_size:
                 raise ValueError(f"a screen region starts at row {s.row0}, not on a tile row")

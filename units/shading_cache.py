@@ -267,7 +267,7 @@ class Shading:
         if self.conservative:
             return self._run_conservative(batch, ops, events)
         n = len(batch["tri"])
-        row = int(batch["pix"][0]) // self.draw.width if n else (self.samples.row0 if self.samples is not None else 0)
+        row = int(batch["pix"][0]) // self.draw.width if n else None
         self.samples = samples_for_row(self.regions, self.samples, row)
         s = self.samples
         py, px = np.divmod(batch["pix"], s.width)
