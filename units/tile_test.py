@@ -45,6 +45,52 @@ EVENTS = ("rejected_box", "rejected_edge", "rejected_lens", "accepted", "rejecte
 
 
 @nb.njit(cache=True)
+def _box_at(p0, dp, l0, dl, tri, t):
+    """The triangle's 2DH box at time t, lens shifts included: x, y, w extents."""
+    xmn = np.inf
+    xmx = -np.inf
+    ymn = np.inf
+    ymx = -np.inf
+    wmn = np.inf
+    wmx = -np.inf
+    for k in range(3):
+        X = p0[tri, k, 0] + t * dp[tri, k, 0]
+        Y = p0[tri, k, 1] + t * dp[tri, k, 1]
+        W = p0[tri, k, 3] + t * dp[tri, k, 3]
+        LX = abs(l0[tri, k, 0] + t * dl[tri, k, 0])
+        LY = abs(l0[tri, k, 1] + t * dl[tri, k, 1])
+        xmn = min(xmn, X - LX)
+        xmx = max(xmx, X + LX)
+        ymn = min(ymn, Y - LY)
+        ymx = max(ymx, Y + LY)
+        wmn = min(wmn, W)
+        wmx = max(wmx, W)
+    return xmn, xmx, ymn, ymx, wmn, wmx
+
+
+@nb.njit(cache=True)
+def _outside_distance(plane, x0, x1, y0, y1, xmn, xmx, ymn, ymx, wmn, wmx):
+    """How far a box lies outside one tile frustum plane (> 0: wholly outside), beyond float32 rounding."""
+    if plane == 0:  # left side: outside when x0 W - X > 0
+        wv = wmn if x0 > 0 else wmx
+        d = x0 * wv - xmx
+        mag = abs(x0 * wv) + abs(xmx)
+    elif plane == 1:  # right side: outside when X - x1 W > 0
+        wv = wmx if x1 > 0 else wmn
+        d = xmn - x1 * wv
+        mag = abs(x1 * wv) + abs(xmn)
+    elif plane == 2:  # top
+        wv = wmn if y0 > 0 else wmx
+        d = y0 * wv - ymx
+        mag = abs(y0 * wv) + abs(ymx)
+    else:  # bottom
+        wv = wmx if y1 > 0 else wmn
+        d = ymn - y1 * wv
+        mag = abs(y1 * wv) + abs(ymn)
+    return d - F32_REL * mag
+
+
+@nb.njit(cache=True)
 def box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ta, tb, ops):
     """Moving 2DH box of the triangle against the tile frustum planes (002 eq. 1-2).
 
@@ -55,69 +101,28 @@ def box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ta, tb, ops):
     may overlap the tile [x0, x1] x [y0, y1] (pixel units, already widened);
     empty when lo > hi.
     """
-    xmn = np.empty(2)
-    xmx = np.empty(2)
-    ymn = np.empty(2)
-    ymx = np.empty(2)
-    wmn = np.empty(2)
-    wmx = np.empty(2)
-    for s in range(2):
-        t = ta if s == 0 else tb
-        xmn[s] = np.inf
-        xmx[s] = -np.inf
-        ymn[s] = np.inf
-        ymx[s] = -np.inf
-        wmn[s] = np.inf
-        wmx[s] = -np.inf
-        for k in range(3):
-            X = p0[tri, k, 0] + t * dp[tri, k, 0]
-            Y = p0[tri, k, 1] + t * dp[tri, k, 1]
-            W = p0[tri, k, 3] + t * dp[tri, k, 3]
-            LX = abs(l0[tri, k, 0] + t * dl[tri, k, 0])
-            LY = abs(l0[tri, k, 1] + t * dl[tri, k, 1])
-            xmn[s] = min(xmn[s], X - LX)
-            xmx[s] = max(xmx[s], X + LX)
-            ymn[s] = min(ymn[s], Y - LY)
-            ymx[s] = max(ymx[s], Y + LY)
-            wmn[s] = min(wmn[s], W)
-            wmx[s] = max(wmx[s], W)
+    xmn0, xmx0, ymn0, ymx0, wmn0, wmx0 = _box_at(p0, dp, l0, dl, tri, ta)
+    xmn1, xmx1, ymn1, ymx1, wmn1, wmx1 = _box_at(p0, dp, l0, dl, tri, tb)
     ops[OP_MADD] += 30
     ops[OP_CMP] += 36
     lo = ta
     hi = tb
     span = tb - ta
     for plane in range(4):
-        d = np.empty(2)
-        for s in range(2):
-            if plane == 0:  # left side: outside when x0 W - X > 0
-                wv = wmn[s] if x0 > 0 else wmx[s]
-                d[s] = x0 * wv - xmx[s]
-                mag = abs(x0 * wv) + abs(xmx[s])
-            elif plane == 1:  # right side: outside when X - x1 W > 0
-                wv = wmx[s] if x1 > 0 else wmn[s]
-                d[s] = xmn[s] - x1 * wv
-                mag = abs(x1 * wv) + abs(xmn[s])
-            elif plane == 2:  # top
-                wv = wmn[s] if y0 > 0 else wmx[s]
-                d[s] = y0 * wv - ymx[s]
-                mag = abs(y0 * wv) + abs(ymx[s])
-            else:  # bottom
-                wv = wmx[s] if y1 > 0 else wmn[s]
-                d[s] = ymn[s] - y1 * wv
-                mag = abs(y1 * wv) + abs(ymn[s])
-            d[s] -= F32_REL * mag  # outside only beyond float32 rounding
+        d0 = _outside_distance(plane, x0, x1, y0, y1, xmn0, xmx0, ymn0, ymx0, wmn0, wmx0)
+        d1 = _outside_distance(plane, x0, x1, y0, y1, xmn1, xmx1, ymn1, ymx1, wmn1, wmx1)
         ops[OP_MADD] += 2
         ops[OP_CMP] += 2
-        if d[0] > 0.0 and d[1] > 0.0:
+        if d0 > 0.0 and d1 > 0.0:
             return 1.0, 0.0
-        if d[0] > 0.0:
-            t = ta + span * (d[0] / (d[0] - d[1]))
+        if d0 > 0.0:
+            t = ta + span * (d0 / (d0 - d1))
             lo = max(lo, t)
             ops[OP_RCP] += 1
             ops[OP_MUL] += 1
             ops[OP_MADD] += 1
-        elif d[1] > 0.0:
-            t = ta + span * (d[0] / (d[0] - d[1]))
+        elif d1 > 0.0:
+            t = ta + span * (d0 / (d0 - d1))
             hi = min(hi, t)
             ops[OP_RCP] += 1
             ops[OP_MUL] += 1
@@ -174,39 +179,52 @@ def _edge_time_interval(edge_h, edge_gamma, edge_g, edge_fg, edge_abs, gamma_per
 def _lens_interval(p0, dp, l0, dl, tri, axis, a0, a1, ta, tb, ops):
     """Interval of the lens coordinate (u for axis 0, v for axis 1) that can
     put a sample of the tile span [a0, a1] inside the triangle; needs w > 0."""
-    # condition A: some vertex at >= a0 ; condition B: some vertex at <= a1
+    # condition A: some vertex at >= a0 ; condition B: some vertex at <= a1.
+    # Per condition: the union of (-inf, e] (left_end), of [s, inf)
+    # (right_start), and whether some vertex satisfies it at every u.
+    left_a = -np.inf
+    right_a = np.inf
+    every_a = False
+    left_b = -np.inf
+    right_b = np.inf
+    every_b = False
+    for s in range(2):
+        t = ta if s == 0 else tb
+        for k in range(3):
+            W = p0[tri, k, 3] + t * dp[tri, k, 3]
+            X = p0[tri, k, axis] + t * dp[tri, k, axis]
+            L = l0[tri, k, axis] + t * dl[tri, k, axis]
+            alpha = X / W
+            beta = L / W
+            # A: alpha + beta u >= a0, i.e. beta u >= a0 - alpha
+            diff = a0 - alpha
+            if beta == 0.0:
+                if diff <= 0.0:
+                    every_a = True
+            elif beta > 0.0:
+                right_a = min(right_a, diff / beta)
+            else:
+                left_a = max(left_a, diff / beta)
+            # B: alpha + beta u <= a1, i.e. -beta u >= -(a1 - alpha)
+            diff = -(a1 - alpha)
+            nbeta = -beta
+            if nbeta == 0.0:
+                if diff <= 0.0:
+                    every_b = True
+            elif nbeta > 0.0:
+                right_b = min(right_b, diff / nbeta)
+            else:
+                left_b = max(left_b, diff / nbeta)
     lo_all = -1.0
     hi_all = 1.0
     for cond in range(2):
-        edge = a0 if cond == 0 else a1
-        left_end = -np.inf  # union of (-inf, e]
-        right_start = np.inf  # union of [s, inf)
-        everything = False
-        for s in range(2):
-            t = ta if s == 0 else tb
-            for k in range(3):
-                W = p0[tri, k, 3] + t * dp[tri, k, 3]
-                X = p0[tri, k, axis] + t * dp[tri, k, axis]
-                L = l0[tri, k, axis] + t * dl[tri, k, axis]
-                alpha = X / W
-                beta = L / W
-                # A: alpha + beta u >= edge ; B: alpha + beta u <= edge
-                diff = edge - alpha
-                if cond == 1:
-                    diff = -diff
-                    beta = -beta
-                # now need beta u >= diff
-                if beta == 0.0:
-                    if diff <= 0.0:
-                        everything = True
-                elif beta > 0.0:
-                    right_start = min(right_start, diff / beta)
-                else:
-                    left_end = max(left_end, diff / beta)
         ops[OP_RCP] += 6
         ops[OP_MUL] += 12
         ops[OP_MADD] += 18
         ops[OP_CMP] += 12
+        everything = every_a if cond == 0 else every_b
+        left_end = left_a if cond == 0 else left_b
+        right_start = right_a if cond == 0 else right_b
         if everything:
             continue
         if left_end == -np.inf and right_start == np.inf:
