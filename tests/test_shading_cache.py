@@ -25,8 +25,8 @@ from pipeline_sim.draw import draw_from_clip
 from pipeline_sim.render import RenderPass, run_pass
 from pipeline_sim.shaders import (IN_B, IN_G, IN_R, IN_T, IN_TRIANGLE, IN_U, IN_V, IN_X, IN_Y, N_INPUTS,
                                   standard_shader)
-from units.shading_cache import (EVENTS, REPL_FIFO, REPL_LRU, Shading, cache_kernel, first_sample_of_request,
-                                 store_requests)
+from units.shading_cache import (EVENTS, REPL_FIFO, REPL_LRU, Shading, cache_kernel, deliver_colors,
+                                 first_sample_of_request, store_requests)
 
 EV = {name: i for i, name in enumerate(EVENTS)}
 
@@ -507,3 +507,15 @@ def test_store_requests_keeps_each_entrys_last_request(entries):
         else:
             np.testing.assert_array_equal(entry_color[e], shaded[last])
             assert entry_req[e] == -1
+
+
+@given(st.lists(st.integers(-1, 6), min_size=0, max_size=60))
+def test_deliver_colors_against_fancy_indexing(refs):
+    sample_req = np.array(refs, np.int32)
+    shaded = np.arange(28, dtype=np.float32).reshape(7, 4) + 0.5
+    color = np.full((len(refs), 4), -3.0, np.float32)
+    deliver_colors(sample_req, shaded, color)
+    expected = np.full((len(refs), 4), -3.0, np.float32)
+    has = sample_req >= 0
+    expected[has] = shaded[sample_req[has]]
+    np.testing.assert_array_equal(color, expected)

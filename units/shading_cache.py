@@ -188,6 +188,17 @@ def store_requests(req_entry, shaded, entry_color, entry_req):
 
 
 @nb.njit(cache=True)
+def deliver_colors(sample_req, shaded, color):
+    """Each sample that points at a request of this batch (``sample_req`` >= 0)
+    takes that request's shaded color; the others keep theirs (cache hits)."""
+    for i in range(sample_req.shape[0]):
+        r = sample_req[i]
+        if r >= 0:
+            for c in range(4):
+                color[i, c] = shaded[r, c]
+
+
+@nb.njit(cache=True)
 def interpolate_kernel(req_tri, req_l, req_t, req_u, req_v, req_x, req_y, req_depth,
                        pos, nrm, color, material, object_id, inputs, ops):
     """Perspective-correct attribute interpolation for shading requests (002 §8 'interpolation setup')."""
@@ -270,7 +281,6 @@ class Shading:
         row = int(batch["pix"][0]) // self.draw.width if n else None
         self.samples = samples_for_row(self.regions, self.samples, row)
         s = self.samples
-        py, px = np.divmod(batch["pix"], s.width)
         color = np.zeros((n, 4), np.float32)
         if self.cached:
             sample_req = np.empty(n, np.int32)
@@ -284,18 +294,19 @@ class Shading:
                 req_tri, req_l, ops, events)
             first = np.empty(nreq, np.int64)
             first_sample_of_request(sample_req, first)
-            has = sample_req >= 0
+            py, px = np.divmod(batch["pix"][first], s.width)
             half = np.full(nreq, 0.5, np.float32)
             zero = np.zeros(nreq, np.float32)
             inputs = np.zeros((N_INPUTS, nreq), np.float32)
             interpolate_kernel(req_tri[:nreq], req_l[:, :nreq], half, zero, zero,
-                               (px[first] + 0.5).astype(np.float32), (py[first] + 0.5).astype(np.float32),
+                               (px + 0.5).astype(np.float32), (py + 0.5).astype(np.float32),
                                batch["z"][first], self.draw.pos, self.draw.nrm, self.draw.color,
                                self.draw.material, self.draw.object_id, inputs, ops)
             shaded = self._shade(inputs)
-            color[has] = shaded[sample_req[has]]
+            deliver_colors(sample_req, shaded, color)
             store_requests(req_entry[:nreq], shaded, self.entry_color, self.entry_req)
         else:
+            py, px = np.divmod(batch["pix"], s.width)
             k = (batch["pix"].astype(np.int64) - s.row0 * s.width) * s.spp + batch["sidx"]
             st, su, sv = s.t[k], s.u[k], s.v[k]
             req_l = np.stack([batch["b0"], batch["b1"], batch["b2"]]).astype(np.float64)
