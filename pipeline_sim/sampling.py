@@ -316,7 +316,7 @@ def _argsort(keys: np.ndarray) -> np.ndarray:
     return order
 
 
-_CHUNK = 16384  # pixels per thread-pool work item
+_CHUNK = 4096  # pixels per thread-pool work item (a screen region of 128 rows is several)
 
 
 @numba.njit(**_JIT)

@@ -85,6 +85,18 @@ def rop_kernel(pix, sidx, z, color, noread, spp, pix0, func, depth_write, blend,
     traffic[1] += (DEPTH_BYTES * passed if depth_write else 0) + COLOR_BYTES * passed
 
 
+@nb.njit(cache=True)
+def resolve_kernel(color_buf, spp, out):
+    """Box filter (PIPELINE §2.7): each pixel's mean over its ``spp`` samples, summed in float64."""
+    for p in range(out.shape[0]):
+        base = p * spp
+        for c in range(4):
+            acc = 0.0
+            for s in range(spp):
+                acc += color_buf[base + s, c]
+            out[p, c] = acc / spp
+
+
 class Rop:
     """Functional model of the ROP and the multisample render target.
 
@@ -132,8 +144,7 @@ class Rop:
     def _resolve_region(self) -> None:
         """Box-filter the current region into the image (and keep its depth when asked)."""
         r0, r1 = self.plan.bounds(self.region)
-        c = self.color.reshape(r1 - r0, self.width, self.spp, 4)
-        self.image[r0:r1] = c.mean(axis=2, dtype=np.float64).astype(np.float32)
+        resolve_kernel(self.color, self.spp, self.image[r0:r1].reshape(-1, 4))
         if self.frame_depth is not None:
             self.frame_depth[self.pix0 * self.spp : r1 * self.width * self.spp] = self.depth
 
