@@ -113,53 +113,72 @@ def _records(batch: Any) -> int:
     return len(batch) if hasattr(batch, "__len__") else 1
 
 
-def _put(env: simpy.Environment, ch: Channel, ready: float, batch: Any):
-    """Put a batch, waiting for room (for its records, when the channel counts records)."""
+def _item(ch: Channel, ready: float, batch: Any) -> tuple[float, Any, int]:
+    """The channel item of a batch: (ready time, batch, records it takes of a record-bounded channel).
+
+    A batch of more records than the whole capacity counts as the whole
+    capacity, so it waits for an empty FIFO rather than forever.
+    """
     n = min(max(_records(batch), 1), ch.store.records) if isinstance(ch.store, RecordStore) else 0
-    yield ch.store.put((ready, batch, n))
+    return ready, batch, n
 
 
 def _stage_process(env: simpy.Environment, stage: Stage, inp: Channel, out: Channel | None):
+    """Get a batch, wait until it is ready, step the unit, stay busy its cycles, put its outputs.
+
+    ``env.now`` is read once after each yield (it only moves across yields).
+    """
+    get = inp.store.get
+    trace = stage.trace
     while True:
         t0 = env.now
-        item = yield inp.store.get()
-        inp.record(env.now)
+        item = yield get()
+        now = env.now
+        inp.record(now)
         if item is END:
-            stage.starved += env.now - t0
-            stage.mark(t0, env.now, "starved")
+            stage.starved += now - t0
+            if now > t0:
+                trace.append((t0, now, "starved"))
             if out is not None:
-                t1 = env.now
                 yield out.store.put(END)
-                out.record(env.now)
-                stage.blocked += env.now - t1
-                stage.mark(t1, env.now, "blocked")
+                t2 = env.now
+                out.record(t2)
+                stage.blocked += t2 - now
+                if t2 > now:
+                    trace.append((now, t2, "blocked"))
             stage.finished = env.now
             return
         ready, payload, _ = item
-        if ready > env.now:
-            yield env.timeout(ready - env.now)
-        stage.starved += env.now - t0
-        stage.mark(t0, env.now, "starved")
+        if ready > now:
+            yield env.timeout(ready - now)
+            now = env.now
+        stage.starved += now - t0
+        if now > t0:
+            trace.append((t0, now, "starved"))
         outputs, cycles = stage.step(payload)
         stage.batches += 1
         if cycles > 0:
-            t1 = env.now
             yield env.timeout(cycles)
             stage.busy += cycles
-            stage.mark(t1, env.now, "busy")
+            trace.append((now, env.now, "busy"))
+            now = env.now
         if out is None:
             continue
+        put = out.store.put
+        latency = stage.latency
         for batch in outputs:
-            t1 = env.now
-            yield from _put(env, out, env.now + stage.latency, batch)
-            out.record(env.now)
-            stage.blocked += env.now - t1
-            stage.mark(t1, env.now, "blocked")
+            yield put(_item(out, now + latency, batch))
+            t2 = env.now
+            out.record(t2)
+            stage.blocked += t2 - now
+            if t2 > now:
+                trace.append((now, t2, "blocked"))
+            now = t2
 
 
 def _source_process(env: simpy.Environment, batches: list[Any], out: Channel):
     for batch in batches:
-        yield from _put(env, out, env.now, batch)
+        yield out.store.put(_item(out, env.now, batch))
         out.record(env.now)
     yield out.store.put(END)
     out.record(env.now)
