@@ -158,6 +158,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     pcfg = arch.pipeline
     done = [0]
     set_up = np.zeros(draw.n, np.bool_)  # per triangle: set up (in an earlier region's batch or this one)
+    presetup = plan.count > 1  # several regions: triangles are set up before binning
     kept = np.zeros(draw.n, np.bool_)  # and survived setup
 
     def step_setup(batch: TriangleBatch):
@@ -167,12 +168,17 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         new = ids[~set_up[ids]]
         if len(new):
             set_up[new] = True
-            out, ops, ev = setup.run(new)
-            kept[out] = True
             c = cs["triangle_setup"]
-            c.add_ops(ops), c.add_events(ev), count_records(c, len(new), len(out))
+            if presetup:  # set up before binning: its arithmetic and events are counted there
+                n_out = int(kept[new].sum())
+            else:
+                out, ops, ev = setup.run(new)
+                kept[out] = True
+                n_out = len(out)
+                c.add_ops(ops), c.add_events(ev)
+            count_records(c, len(new), n_out)
             c.add("bytes_read", len(new) * SETUP_BYTES_IN)
-            c.add("bytes_written", len(out) * SETUP_BYTES_OUT)
+            c.add("bytes_written", n_out * SETUP_BYTES_OUT)
             done[0] += len(new)
             if progress is not None:
                 progress(done[0], draw.n)
@@ -264,11 +270,16 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         bypassed.add("sample_tester")
     stages = [Stage(name, fn, lat) for name, fn, lat in stage_defs if name not in bypassed]
     ids = np.arange(draw.n, dtype=np.int64)
-    if plan.count > 1:
-        # binning needs each triangle's screen bounds: a functional setup pass
-        # here (its work is counted when the simulated setup stage runs)
+    if presetup:
+        # binning needs each triangle's screen bounds: the functional setup
+        # runs here, once per triangle (setup is per triangle, so its counters
+        # do not depend on the grouping); the simulated setup stage then
+        # takes each triangle's results in its first region and its cycles
+        c = cs["triangle_setup"]
         for i in range(0, draw.n, 1 << 16):
-            setup.run(ids[i : i + (1 << 16)])
+            out, ops, ev = setup.run(ids[i : i + (1 << 16)])
+            kept[out] = True
+            c.add_ops(ops), c.add_events(ev)
     bins = bin_triangles(setup.table.bounds, ids, plan)
     tpb = pcfg.triangles_per_batch
     tri_batches = [TriangleBatch(r, b[i : i + tpb]) for r, b in enumerate(bins) for i in range(0, len(b), tpb)]
