@@ -144,6 +144,24 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
     hy = 0.5 * height
     px = np.empty((2, 3, 4))  # pixel-space (X, Y, Z, W) at t=0, t=1
     lx = np.empty((2, 3, 2))
+    # scratch, allocated once: an allocation per triangle would cost more than its arithmetic
+    g = np.empty(2)
+    ls = np.empty(2)
+    f = np.empty(4)
+    vx = np.empty(3)
+    vy = np.empty(3)
+    vw = np.empty(3)
+    hv = np.empty(3)
+    fv = np.empty(3)
+    gv = np.empty(3)
+    ga = np.empty(3)
+    gb = np.empty(3)
+    ab = np.empty(3)
+    nv = np.empty(3)
+    di = np.empty(4)
+    dj = np.empty(4)
+    e1 = np.empty(4)
+    e2 = np.empty(4)
     for b in range(ids.shape[0]):
         tri = ids[b]
         moving = False
@@ -205,8 +223,6 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
             lo = 2.0
             hi = -1.0
             for k in range(3):
-                g = np.empty(2)
-                ls = np.empty(2)
                 for s in range(2):
                     X = px[s, k, 0]
                     Y = px[s, k, 1]
@@ -259,12 +275,8 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
             u = (2.0 * iu - 1.0) if has_lens else 0.0
             for iv in range(nu):
                 v = (2.0 * iv - 1.0) if has_lens else 0.0
-                f = np.empty(4)
                 for it in range(4 if moving else 1):
                     t = it / 3.0
-                    vx = np.empty(3)
-                    vy = np.empty(3)
-                    vw = np.empty(3)
                     prod = 1.0
                     for k in range(3):
                         vx[k] = px[0, k, 0] + t * (px[1, k, 0] - px[0, k, 0]) + u * (lx[0, k, 0] + t * (lx[1, k, 0] - lx[0, k, 0]))
@@ -381,16 +393,12 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
                 j = (k + 2) % 3
                 qi = px[0, i]
                 qj = px[0, j]
-                di = px[1, i] - px[0, i]
-                dj = px[1, j] - px[0, j]
+                for c in range(4):
+                    di[c] = px[1, i, c] - px[0, i, c]
+                    dj[c] = px[1, j, c] - px[0, j, c]
                 # n(t) = p_j(t) x p_i(t) over (X, Y, W) = f t^2 + g t + h
-                hv = np.empty(3)
-                fv = np.empty(3)
-                gv = np.empty(3)
                 _cross3(qj[0], qj[1], qj[3], qi[0], qi[1], qi[3], hv)
                 _cross3(dj[0], dj[1], dj[3], di[0], di[1], di[3], fv)
-                ga = np.empty(3)
-                gb = np.empty(3)
                 _cross3(qj[0], qj[1], qj[3], di[0], di[1], di[3], ga)
                 _cross3(dj[0], dj[1], dj[3], qi[0], qi[1], qi[3], gb)
                 for c in range(3):
@@ -404,7 +412,6 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
                     gam = max(gam, m)
                 # the magnitudes of the products behind h, g and f: float32 vertices move
                 # the edge function by up to ~2^-23 of these, however much f, g, h cancel
-                ab = np.empty(3)
                 _abs_cross3(qj[0], qj[1], qj[3], qi[0], qi[1], qi[3], ab)
                 for c in range(3):
                     edge_abs[tri, k, c] = ab[c]
@@ -434,9 +441,9 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
         if depth_planes and wpos:
             for which in range(2):
                 # plane through the triangle at t=0 (which=0) or t=1 (which=1), in (X, Y, W)
-                e1 = px[which, 1] - px[which, 0]
-                e2 = px[which, 2] - px[which, 0]
-                nv = np.empty(3)
+                for c in range(4):
+                    e1[c] = px[which, 1, c] - px[which, 0, c]
+                    e2[c] = px[which, 2, c] - px[which, 0, c]
                 _cross3(e1[0], e1[1], e1[3], e2[0], e2[1], e2[3], nv)
                 nl = abs(nv[0]) + abs(nv[1]) + abs(nv[2])
                 if nl == 0.0:
