@@ -48,14 +48,22 @@ def cache_kernel(tri, b0, b1, b2, ref, rate, grid_w, grid_h, tags, stamps, entry
     """
     nsets = tags.shape[0]
     ways = tags.shape[1]
+    set_mask = np.uint64(nsets - 1)
+    pow2 = (nsets & (nsets - 1)) == 0  # the set index is a mask then, not a division
     nreq = 0
+    l = np.empty(3)
+    # counted in locals, written once: a kernel's counter arrays may alias its outputs for all numba knows
+    n_miss = 0
+    n_hit = 0
+    n_evict = 0
+    n_uncached = 0
+    n_in_front = 0
     for i in range(tri.shape[0]):
         tr = tri[i]
         # surface point seen by the reference camera (t = 0.5, lens centre)
         X = b0[i] * ref[tr, 0, 0] + b1[i] * ref[tr, 1, 0] + b2[i] * ref[tr, 2, 0]
         Y = b0[i] * ref[tr, 0, 1] + b1[i] * ref[tr, 1, 1] + b2[i] * ref[tr, 2, 1]
         W = b0[i] * ref[tr, 0, 2] + b1[i] * ref[tr, 1, 2] + b2[i] * ref[tr, 2, 2]
-        ops[OP_MADD] += 9
         cx = 0
         cy = 0
         centre_ok = False
@@ -67,15 +75,13 @@ def cache_kernel(tri, b0, b1, b2, ref, rate, grid_w, grid_h, tags, stamps, entry
                 cx = int(np.floor(fx))
                 cy = int(np.floor(fy))
                 centre_ok = True
-            ops[OP_RCP] += 1
-            ops[OP_MUL] += 4
-        events[EV_LOOKUP] += 1
+            n_in_front += 1
         clock += 1
         if not centre_ok:
             # the surface point is behind the reference camera (or absurdly far
             # off screen): it has no shading-grid cell, so it is shaded on its
             # own, uncached, at its own barycentrics
-            events[EV_MISS] += 1
+            n_uncached += 1
             req_entry[nreq] = -1
             req_tri[nreq] = tr
             req_l[0, nreq] = b0[i]
@@ -87,15 +93,14 @@ def cache_kernel(tri, b0, b1, b2, ref, rate, grid_w, grid_h, tags, stamps, entry
         key = ((np.int64(tr) << np.int64(42)) + (np.int64(cy + CELL_LIMIT) << np.int64(21))
                + np.int64(cx + CELL_LIMIT))
         h = (np.uint64(key) * HASH_MUL) >> np.uint64(33)
-        st = int(h % np.uint64(nsets))
+        st = int(h & set_mask) if pow2 else int(h % np.uint64(nsets))
         hit_way = -1
         for w in range(ways):
             if tags[st, w] == key:
                 hit_way = w
                 break
-        ops[OP_CMP] += ways
         if hit_way >= 0:
-            events[EV_HIT] += 1
+            n_hit += 1
             e = st * ways + hit_way
             if replacement == REPL_LRU:
                 stamps[st, hit_way] = clock
@@ -107,7 +112,7 @@ def cache_kernel(tri, b0, b1, b2, ref, rate, grid_w, grid_h, tags, stamps, entry
                 for c in range(4):
                     out_color[i, c] = entry_color[e, c]
             continue
-        events[EV_MISS] += 1
+        n_miss += 1
         victim = 0
         best = np.int64(1) << 62
         for w in range(ways):
@@ -119,7 +124,7 @@ def cache_kernel(tri, b0, b1, b2, ref, rate, grid_w, grid_h, tags, stamps, entry
                 best = stamps[st, w]
                 victim = w
         if best != -1:
-            events[EV_EVICT] += 1
+            n_evict += 1
         tags[st, victim] = key
         stamps[st, victim] = clock
         e = st * ways + victim
@@ -129,7 +134,6 @@ def cache_kernel(tri, b0, b1, b2, ref, rate, grid_w, grid_h, tags, stamps, entry
         # barycentrics of the cell centre on the reference triangle
         sx = (cx + 0.5) * rate
         sy = (cy + 0.5) * rate
-        l = np.empty(3)
         for k in range(3):
             ii = (k + 1) % 3
             jj = (k + 2) % 3
@@ -138,9 +142,6 @@ def cache_kernel(tri, b0, b1, b2, ref, rate, grid_w, grid_h, tags, stamps, entry
             c = ref[tr, jj, 0] * ref[tr, ii, 1] - ref[tr, jj, 1] * ref[tr, ii, 0]
             l[k] = a * sx + b * sy + c
         tot = l[0] + l[1] + l[2]
-        ops[OP_MUL] += 9
-        ops[OP_MADD] += 12
-        ops[OP_RCP] += 1
         if tot != 0.0 and np.isfinite(tot):
             # clamp to the triangle so attributes stay in range
             for k in range(3):
@@ -159,7 +160,18 @@ def cache_kernel(tri, b0, b1, b2, ref, rate, grid_w, grid_h, tags, stamps, entry
             req_l[2, nreq] = b2[i]
         sample_req[i] = nreq
         nreq += 1
+    n = tri.shape[0]
+    events[EV_LOOKUP] += n
+    events[EV_HIT] += n_hit
+    events[EV_MISS] += n_miss + n_uncached
+    events[EV_EVICT] += n_evict
     events[EV_EXEC] += nreq
+    # per lookup: the reference point (9 madd); with it in front, its cell (1 rcp, 4 mul) and the
+    # set's tags (ways compares); per cached miss, the cell centre's barycentrics (9 mul, 12 madd, 1 rcp)
+    ops[OP_MADD] += 9 * n + 12 * n_miss
+    ops[OP_MUL] += 4 * n_in_front + 9 * n_miss
+    ops[OP_RCP] += n_in_front + n_miss
+    ops[OP_CMP] += ways * (n - n_uncached)
     return nreq, clock
 
 
