@@ -176,6 +176,20 @@ def _edge_time_interval(edge_h, edge_gamma, edge_g, edge_fg, edge_abs, gamma_per
 
 
 @nb.njit(cache=True)
+def _add_half_line(diff, beta, left_end, right_start, everything):
+    """Add {u : beta u >= diff} to a union of (-inf, left_end], [right_start, inf)
+    and, when ``everything``, the whole line."""
+    if beta == 0.0:
+        if diff <= 0.0:
+            everything = True
+    elif beta > 0.0:
+        right_start = min(right_start, diff / beta)
+    else:
+        left_end = max(left_end, diff / beta)
+    return left_end, right_start, everything
+
+
+@nb.njit(cache=True)
 def _lens_interval(p0, dp, l0, dl, tri, axis, a0, a1, ta, tb, ops):
     """Interval of the lens coordinate (u for axis 0, v for axis 1) that can
     put a sample of the tile span [a0, a1] inside the triangle; needs w > 0."""
@@ -197,24 +211,9 @@ def _lens_interval(p0, dp, l0, dl, tri, axis, a0, a1, ta, tb, ops):
             alpha = X / W
             beta = L / W
             # A: alpha + beta u >= a0, i.e. beta u >= a0 - alpha
-            diff = a0 - alpha
-            if beta == 0.0:
-                if diff <= 0.0:
-                    every_a = True
-            elif beta > 0.0:
-                right_a = min(right_a, diff / beta)
-            else:
-                left_a = max(left_a, diff / beta)
+            left_a, right_a, every_a = _add_half_line(a0 - alpha, beta, left_a, right_a, every_a)
             # B: alpha + beta u <= a1, i.e. -beta u >= -(a1 - alpha)
-            diff = -(a1 - alpha)
-            nbeta = -beta
-            if nbeta == 0.0:
-                if diff <= 0.0:
-                    every_b = True
-            elif nbeta > 0.0:
-                right_b = min(right_b, diff / nbeta)
-            else:
-                left_b = max(left_b, diff / nbeta)
+            left_b, right_b, every_b = _add_half_line(-(a1 - alpha), -beta, left_b, right_b, every_b)
     lo_all = -1.0
     hi_all = 1.0
     for cond in range(2):
