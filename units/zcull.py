@@ -185,8 +185,12 @@ class ZCull:
                          tiles["u_hi"], tiles["v_lo"], tiles["v_hi"], tiles["z_lo"], tiles["z_hi"],
                          self.tiles_x, self.nt, self.nl, self.zmax, self.zmin, self.func, keep, noread,
                          ops, events)
-        out = {name: arr[keep] for name, arr in tiles.items()}
-        out["noread"] = noread[keep]  # depth reads this tile's samples can skip
+        if keep.all():  # the common case: nothing culled, nothing to compact
+            out = dict(tiles)
+            out["noread"] = noread
+        else:
+            out = {name: arr[keep] for name, arr in tiles.items()}
+            out["noread"] = noread[keep]  # depth reads this tile's samples can skip
         return out, ops, events
 
     def refresh(self, pix: np.ndarray, sidx: np.ndarray, prior: np.ndarray, samples, depth: np.ndarray,
