@@ -17,6 +17,7 @@ image.
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -29,45 +30,83 @@ from pipeline_sim.counters import CounterSet
 END = None  # end-of-stream marker
 
 
-class RecordStore(simpy.Store):
-    """A FIFO of ``(ready, batch, records)`` items (and ``END``) bounded in records, not items.
+class Fifo:
+    """A bounded FIFO of ``(ready, batch, weight)`` items (and ``END``) between two stage processes.
 
-    A put waits until its records fit (a batch of more records than the
-    whole capacity counts as the whole capacity: it waits for an empty
-    FIFO); a get frees its records at once. One event per put and per get,
-    as for a plain store, so counting records costs no extra SimPy events.
+    Its capacity counts weights: one per item (a FIFO of ``depth`` batches)
+    or the records of each batch (``by_records``; a batch of more records
+    than the whole capacity weighs the whole capacity, so it waits for an
+    empty FIFO; ``END`` weighs nothing). A put that fits and a get from a
+    non-empty FIFO complete at once, without a SimPy event; only a process
+    that must wait (for room, or for an item) yields one, which the other
+    side triggers at the simulated time it frees room or brings an item. So
+    the event layer schedules the waits, busy times and latencies, and no
+    hand-off that happens at the same instant anyway.
     """
 
-    def __init__(self, env: simpy.Environment, records: int):
-        super().__init__(env)
-        self.records = records
-        self.level = 0  # records held
+    def __init__(self, env: simpy.Environment, capacity: int, by_records: bool):
+        self.env = env
+        self.capacity = capacity
+        self.by_records = by_records
+        self.level = 0  # weight held
+        self.items: deque = deque()
+        self._waiting_get: simpy.Event | None = None  # the consumer, waiting for an item
+        self._waiting_put: tuple[simpy.Event, Any, int] | None = None  # the producer, waiting for room
 
-    def _do_put(self, event) -> None:
-        n = event.item[2] if event.item is not END else 0
-        if self.level + n <= self.records:
-            self.level += n
-            self.items.append(event.item)
-            event.succeed()
+    def weight(self, item: Any) -> int:
+        if item is END:
+            return 0 if self.by_records else 1
+        return min(max(_records(item[1]), 1), self.capacity) if self.by_records else 1
 
-    def _do_get(self, event) -> None:
+    def put(self, item: Any) -> simpy.Event | None:
+        """Put ``item``: None when it went in now, else an event that fires when it does."""
+        w = self.weight(item)
+        if self._waiting_put is None and self.level + w <= self.capacity:
+            self._admit(item, w)
+            return None
+        ev = self.env.event()
+        self._waiting_put = (ev, item, w)
+        return ev
+
+    def get(self) -> tuple[bool, Any]:
+        """(True, item) when an item was there, else (False, an event that fires when one comes)."""
         if self.items:
-            item = self.items.pop(0)
-            self.level -= item[2] if item is not END else 0
-            event.succeed(item)
+            return True, self._take()
+        self._waiting_get = ev = self.env.event()
+        return False, ev
+
+    def take(self) -> Any:
+        """The head item, after the event ``get`` returned has fired."""
+        return self._take()
+
+    def _admit(self, item: Any, w: int) -> None:
+        self.level += w
+        self.items.append((item, w))
+        if self._waiting_get is not None:
+            ev, self._waiting_get = self._waiting_get, None
+            ev.succeed()
+
+    def _take(self) -> Any:
+        item, w = self.items.popleft()
+        self.level -= w
+        if self._waiting_put is not None and self.level + self._waiting_put[2] <= self.capacity:
+            (ev, waiting, ww), self._waiting_put = self._waiting_put, None
+            self._admit(waiting, ww)
+            ev.succeed()
+        return item
 
 
 @dataclass
 class Channel:
     """A bounded FIFO of batches between two stages, with occupancy statistics.
 
-    Bounded either in batches (a plain store of ``depth`` items) or in records
-    (a ``RecordStore``), so that the batch size sets the granularity of the
+    Bounded either in batches (``depth`` items) or in records (``Fifo``'s
+    ``by_records``), so that the batch size sets the granularity of the
     timing without changing the size of the FIFO.
     """
 
     name: str
-    store: simpy.Store
+    store: Fifo
     depth: int
     _last: float = 0.0
     _level: int = 0
@@ -113,26 +152,19 @@ def _records(batch: Any) -> int:
     return len(batch) if hasattr(batch, "__len__") else 1
 
 
-def _item(ch: Channel, ready: float, batch: Any) -> tuple[float, Any, int]:
-    """The channel item of a batch: (ready time, batch, records it takes of a record-bounded channel).
-
-    A batch of more records than the whole capacity counts as the whole
-    capacity, so it waits for an empty FIFO rather than forever.
-    """
-    n = min(max(_records(batch), 1), ch.store.records) if isinstance(ch.store, RecordStore) else 0
-    return ready, batch, n
-
-
 def _stage_process(env: simpy.Environment, stage: Stage, inp: Channel, out: Channel | None):
     """Get a batch, wait until it is ready, step the unit, stay busy its cycles, put its outputs.
 
     ``env.now`` is read once after each yield (it only moves across yields).
     """
-    get = inp.store.get
+    fifo = inp.store
     trace = stage.trace
     while True:
         t0 = env.now
-        item = yield get()
+        got, item = fifo.get()
+        if not got:
+            yield item
+            item = fifo.take()
         now = env.now
         inp.record(now)
         if item is END:
@@ -140,7 +172,9 @@ def _stage_process(env: simpy.Environment, stage: Stage, inp: Channel, out: Chan
             if now > t0:
                 trace.append((t0, now, "starved"))
             if out is not None:
-                yield out.store.put(END)
+                ev = out.store.put(END)
+                if ev is not None:
+                    yield ev
                 t2 = env.now
                 out.record(t2)
                 stage.blocked += t2 - now
@@ -165,23 +199,26 @@ def _stage_process(env: simpy.Environment, stage: Stage, inp: Channel, out: Chan
         if out is None:
             continue
         put = out.store.put
-        latency = stage.latency
+        ready = now + stage.latency
         for batch in outputs:
-            yield put(_item(out, now + latency, batch))
+            ev = put((ready, batch, None))
+            if ev is not None:
+                yield ev
             t2 = env.now
             out.record(t2)
             stage.blocked += t2 - now
             if t2 > now:
                 trace.append((now, t2, "blocked"))
             now = t2
+            ready = now + stage.latency
 
 
 def _source_process(env: simpy.Environment, batches: list[Any], out: Channel):
-    for batch in batches:
-        yield out.store.put(_item(out, env.now, batch))
+    for batch in batches + [END]:
+        ev = out.store.put((env.now, batch, None) if batch is not END else END)
+        if ev is not None:
+            yield ev
         out.record(env.now)
-    yield out.store.put(END)
-    out.record(env.now)
 
 
 @dataclass
@@ -205,9 +242,9 @@ def simulate(stages: list[Stage], source_batches: list[Any], queue_depth: int,
     env = simpy.Environment()
     names = ["input"] + [f"{a.name}->{b.name}" for a, b in zip(stages, stages[1:])]
     if capacities is None:
-        channels = [Channel(n, simpy.Store(env, capacity=queue_depth), queue_depth) for n in names]
+        channels = [Channel(n, Fifo(env, queue_depth, by_records=False), queue_depth) for n in names]
     else:
-        channels = [Channel(n, RecordStore(env, cap), queue_depth) for n, cap in zip(names, capacities)]
+        channels = [Channel(n, Fifo(env, cap, by_records=True), queue_depth) for n, cap in zip(names, capacities)]
     env.process(_source_process(env, source_batches, channels[0]))
     for i, stage in enumerate(stages):
         out = channels[i + 1] if i + 1 < len(channels) else None
