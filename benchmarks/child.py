@@ -74,7 +74,8 @@ def scaling_point(spec: dict) -> dict:
 
     warm_up()
     if spec["kind"] == "tris":
-        p = random_triangles_pass(spec["n"], spec["width"], spec["height"], spec["spp"])
+        p = random_triangles_pass(spec["n"], spec["width"], spec["height"], spec["spp"],
+                                  back_to_front=spec.get("back_to_front", False))
     else:
         p = default_pass(spec["width"], spec["height"], spec["spp"])
     import gc
