@@ -94,7 +94,7 @@ def estimate_bytes(draw, width: int, height: int, spp: int, tile_size: int, zcul
         "per_triangle_tables": draw_bytes + table_per_tri * draw.n,
         "table_bytes_per_triangle": table_per_tri,
         "draw_bytes_per_triangle": draw_bytes / max(1, draw.n),
-        "resolve_temporaries": width * min(region_rows, height) * 4 * (8 + 4),  # float64 mean, float32 copy
+        "resolve_temporaries": width * height * 4 * 4,  # the copy of the image resolve() returns
         "zcull": tiles * (2 * 4 * zcull_boxes + 1 + 8) + n,  # zmin, zmax, refresh state; a box number a sample
     }
 
@@ -325,7 +325,7 @@ def report(f: dict, table, add) -> list[str]:
             ("per-triangle: draw", f"{e['draw']:.0f} MB", f"{e['draw_bytes_per_triangle']:.0f} B per triangle"),
             ("per-triangle: setup table", f"{e['triangle_table']:.0f} MB",
              f"{e['table_bytes_per_triangle']:.0f} B per triangle"),
-            ("resolve temporaries", f"{e['resolve_temporaries']:.0f} MB", "float64 mean + float32 image"),
+            ("resolve temporaries", f"{e['resolve_temporaries']:.0f} MB", "the image copy resolve() returns"),
             ("z-cull tile boxes and per-sample box numbers", f"{e['zcull']:.1f} MB", ""),
             ("sum of the above", f"{sum(v for k, v in e.items() if k in SUMMED):.0f} MB",
              f"vs run peak - RSS after warm-up = {p['run_peak_mb'] - p['rss_after_warm_up_mb']:.0f} MB"),
