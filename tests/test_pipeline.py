@@ -151,6 +151,71 @@ def test_model_matches_simulation_random():
         np.testing.assert_allclose(rows.utilization, ref["busy"] / ref["frame"] if ref["frame"] else 0.0)
 
 
+def model_records(costs, lats, weights, capacity):
+    """The recurrence with FIFOs bounded in records: batch k of weight
+    w_k = min(max(records, 1), capacity) enters once the batches still held
+    ahead of it and itself fit, i.e. once batch m - 1 has been taken, m the
+    first index with w_m + ... + w_k <= capacity; the end marker weighs
+    nothing. Returns frame cycles and per-stage busy, blocked, starved."""
+    m = len(costs)
+    n = len(costs[0])
+    w = [min(max(x, 1), capacity) for x in weights]
+
+    def first_fitting(k):
+        total, i = 0, k
+        while i >= 0 and total + w[i] <= capacity:
+            total += w[i]
+            i -= 1
+        return i  # the batch that must have been taken; -1: none
+
+    G = np.zeros((m, n + 1))
+    S = np.zeros((m, n))
+    F = np.zeros((m, n))
+    P = np.zeros((m, n + 1))
+    src = np.zeros(n + 1)
+    for k in range(n + 1):
+        room = lambda j: (NEG if k == n or first_fitting(k) < 0 else G[j][first_fitting(k)])  # noqa: E731
+        src[k] = max(src[k - 1] if k else 0.0, room(0))
+        for j in range(m):
+            arrive = src[k] if j == 0 else P[j - 1][k]
+            G[j][k] = max(arrive, P[j][k - 1] if k else 0.0)
+            last = j == m - 1
+            if k == n:
+                P[j][k] = G[j][k]
+                continue
+            ready = 0.0 if j == 0 else F[j - 1][k] + lats[j - 1]
+            S[j][k] = max(G[j][k], ready)
+            F[j][k] = S[j][k] + costs[j][k]
+            P[j][k] = F[j][k] if last else max(F[j][k], room(j + 1))
+    frame = float(G[m - 1][n])
+    blocked = (P[:, :n] - F).sum(axis=1) + (P[:, n] - G[:, n])
+    prevP = np.concatenate([np.zeros((m, 1)), P[:, :n]], axis=1)
+    starved = (S - prevP[:, :n]).sum(axis=1) + (G[:, n] - P[:, n - 1]) + (frame - P[:, n])
+    return dict(frame=frame, busy=np.array([sum(c) for c in costs], float), blocked=blocked, starved=starved)
+
+
+def test_record_bounded_fifos_match_the_recurrence():
+    """FIFOs sized in records (what every pass uses): random batch sizes, some
+    larger than the whole FIFO, against the weighted recurrence."""
+    rng = np.random.default_rng(7)
+    for trial in range(150):
+        m = int(rng.integers(1, 5))
+        n = int(rng.integers(1, 12))
+        capacity = int(rng.integers(1, 9))
+        weights = [int(x) for x in rng.integers(0, 12, n)]
+        costs = [[int(c) for c in rng.integers(0, 10, n)] for _ in range(m)]
+        lats = [int(x) for x in rng.integers(0, 15, m)]
+        stages = [Stage(f"s{j}", lambda b, j=j: ([b], costs[j][b["k"]]), lats[j]) for j in range(m)]
+        batches = [{"records": np.zeros(weights[k]), "k": k} for k in range(n)]
+        res = simulate(stages, batches, queue_depth=1, capacities=[capacity] * m)
+        ref = model_records(costs, lats, weights, capacity)
+        ctx = (costs, lats, weights, capacity)
+        assert res.frame_cycles == ref["frame"], ctx
+        np.testing.assert_array_equal(res.units.busy.to_numpy(), ref["busy"], err_msg=str(ctx))
+        np.testing.assert_array_equal(res.units.blocked.to_numpy(), ref["blocked"], err_msg=str(ctx))
+        np.testing.assert_array_equal(res.units.starved.to_numpy(), ref["starved"], err_msg=str(ctx))
+
+
 def test_accounting_covers_the_frame():
     """busy + starved + blocked = frame cycles for every stage."""
     rng = np.random.default_rng(1)
