@@ -101,13 +101,15 @@ unless said otherwise:
    and multisample buffers exist for one region at a time); a size that does
    not finish is reported with the reason. ``--quick`` runs a tiny stand-in
    (4,000 triangles at 480x270). Writes ``frame.csv``. This section alone
-   takes about 8 minutes of the full run.
+   takes about 2 minutes of the full run.
 8. Sample patterns (benchmarks/patterns.py): the per-pixel discrepancy of
    every sample pattern (scipy.stats.qmc, centered L2) in (x, y), (x, y, t)
    and 5D, and how fast each is generated.
 9. ("tester" section) The sample tester against bare micro-kernels of the
    same dimension on exactly the samples it tests, record by record
-   (benchmarks/tester_speed.py): issue 3's like-for-like throughput ratio.
+   (benchmarks/tester_speed.py): issue 3's like-for-like throughput ratio;
+   and against a brute-force tester, the micro-kernel on every sample of
+   each record's tile (the tester's whole input), in tile samples a second.
 
 ``--only SECTION[,SECTION]`` runs some sections only (default, tester,
 scaling, compile, specialization, batch, frame, patterns; "default" is 0-2);
@@ -662,6 +664,8 @@ def report(results: dict) -> tuple[str, list[dict]]:
         out.append("")
         for name, r in list(tr["dims"].items()) + [("all", tr["all"])]:
             add("tester", f"tester_over_micro@{name}", r["ratio"], "ratio")
+            add("tester", f"tester_over_brute_force@{name}", r["ratio_brute"], "ratio",
+                "tile samples per second: the tester vs the micro-kernel on every sample of each record's tile")
             add("tester", f"tester_rate@{name}", r["tester_rate"], "tests/s")
     from benchmarks import batching, frame, patterns, specialization
     for key, mod in (("specialization", specialization), ("batch", batching), ("frame", frame),

@@ -18,7 +18,11 @@ benchmark makes that comparison like for like:
    in the record's intervals), gathered beforehand into contiguous
    structure-of-arrays blocks, one block per record. The gather is checked
    against the tester's own per-dimension counters.
-4. Rates are tests per second of wall time; tester and micro-kernel calls
+4. Also (c): the same micro-kernel on every sample of each record's tile,
+   the tester's whole input, without intervals: a brute-force tester. The
+   second table compares the two in tile samples handled per second, the
+   other reading of "the same samples".
+5. Rates are tests per second of wall time; tester and micro-kernel calls
    alternate (which goes first flips every repeat); per-dimension totals are
    summed over the sub-batches of a repeat, and the table shows medians over
    repeats (the ratio is the median of the per-repeat ratios, its range in
@@ -106,12 +110,14 @@ def capture(scenes=SCENES, scene_dir: Path = ROOT / "workloads" / "scenes") -> l
 
 @nb.njit(cache=True)
 def gather_tested(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, lines, masks, general, tile_size,
-                  width, height, spp, sx, sy, su, sv, st, stup, gx, gy, gu, gv, gt, rec_off):
+                  width, height, spp, sx, sy, su, sv, st, stup, gx, gy, gu, gv, gt, rec_off, whole_tile=False):
     """The samples the tester counts as tested, per record, into gx..gt (absolute x, y).
 
     Same interval rules as the tester: float32 bounds rounded inwards, and
     with two-stage lines or Interleave UVT masks (only where t, u or v
-    matter) the time lines and the tuple bit. Returns the number gathered.
+    matter) the time lines and the tuple bit. With ``whole_tile``, every
+    sample of the record's tile instead (what a brute-force tester without
+    intervals would test). Returns the number gathered.
     """
     has_lines = lines.shape[0] == tri_ids.shape[0]
     has_masks = masks.shape[0] == tri_ids.shape[0]
@@ -144,8 +150,8 @@ def gather_tested(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, l
                     t = st[k]
                     u = su[k]
                     v = sv[k]
-                    ok = t >= ta and t <= tb and u >= ua and u <= ub and v >= va and v <= vb
-                    if ok and extra:
+                    ok = whole_tile or (t >= ta and t <= tb and u >= ua and u <= ub and v >= va and v <= vb)
+                    if ok and extra and not whole_tile:
                         ok = (t >= lc + ls * u and t <= hc + hs * u and t >= mc + ms * v and t <= kc + ks * v
                               and ((mk >> np.uint64(stup[k])) & np.uint64(1)) != 0)
                     if ok:
@@ -175,13 +181,13 @@ def tester_args(sb: SubBatch, buf: _Buffers, ops: np.ndarray, events: np.ndarray
     return sb.tester.kernel_args(sb.tiles, dict(zip(_OUT_KEYS, buf.out)), ops, events)
 
 
-def gather(sb: SubBatch, buf: _Buffers) -> int:
+def gather(sb: SubBatch, buf: _Buffers, whole_tile: bool = False) -> int:
     tr, tiles, s = sb.tester, sb.tiles, sb.tester.samples
     return gather_tested(tiles["tri"], tiles["tx"], tiles["ty"], tiles["t_lo"], tiles["t_hi"], tiles["u_lo"],
                          tiles["u_hi"], tiles["v_lo"], tiles["v_hi"], tiles.get("lines", _NO_LINES),
                          tiles.get("mask", _NO_MASKS), sb.dim != 0 or not tr.specialize, tr.tile_size, s.width,
                          s.height, s.spp, s.x, s.y, s.u, s.v, s.t, s.tup if s.tup is not None else _NO_TUPLES,
-                         *buf.g, buf.rec_off)
+                         *buf.g, buf.rec_off, whole_tile)
 
 
 def layout_seconds(subs: list[SubBatch]) -> list[float]:
@@ -217,6 +223,8 @@ def measure(scenes=SCENES, repeats: int = 5, subs: list[SubBatch] | None = None,
     # per dimension, per repeat: seconds, and totals of one pass (tests, scanned, covered)
     t_tester = np.zeros((4, repeats))
     t_micro = np.zeros((4, repeats))
+    t_brute = np.zeros((4, repeats))  # the micro-kernel on every sample of each record's tile
+    tile_samples = np.zeros(4, np.int64)
     tests = np.zeros(4, np.int64)
     gathered = np.zeros(4, np.int64)
     scanned = np.zeros(4, np.int64)
@@ -256,6 +264,12 @@ def measure(scenes=SCENES, repeats: int = 5, subs: list[SubBatch] | None = None,
                         c0 = time.perf_counter()
                         counts = kern(*margs)
                         t_micro[d, rep] += time.perf_counter() - c0
+                m_all = gather(sb, buf, whole_tile=True)
+                c0 = time.perf_counter()
+                kern(sb.tiles["tri"], buf.rec_off, *(g[:m_all] for g in buf.g), t.p0_32, t.dp_32, t.l0_32, t.dl_32)
+                t_brute[d, rep] += time.perf_counter() - c0
+                if rep == 0:
+                    tile_samples[d] += m_all
                 if rep == 0:
                     tests[d] += events[EV_TESTED]
                     tests_by_counter[d] += events[EV_2D + d]
@@ -275,9 +289,13 @@ def measure(scenes=SCENES, repeats: int = 5, subs: list[SubBatch] | None = None,
                                             and np.array_equal(tests, tests_by_counter)),
                  "dims": {}}
 
-    def row(tt, tm, n, sc, cov, mic):
-        med_t, med_m = float(np.median(tt)), float(np.median(tm))
+    def row(tt, tm, tb, n, sc, cov, mic, whole):
+        med_t, med_m, med_b = float(np.median(tt)), float(np.median(tm)), float(np.median(tb))
         return {"tests": int(n), "scanned": int(sc), "tester_covered": int(cov), "micro_inside": int(mic),
+                "tile_samples": int(whole), "brute_s": med_b, "brute_times_s": tb.tolist(),
+                "tester_rate_tile_samples": whole / med_t if med_t else float("nan"),
+                "brute_rate": whole / med_b if med_b else float("nan"),
+                "ratio_brute": float(np.median(tb / tt)) if n else float("nan"),
                 "tester_s": med_t, "micro_s": med_m, "tester_times_s": tt.tolist(), "micro_times_s": tm.tolist(),
                 "tester_rate": n / med_t if med_t else float("nan"), "micro_rate": n / med_m if med_m else float("nan"),
                 "ratio": float(np.median(tm / tt)) if n else float("nan"),
@@ -285,9 +303,10 @@ def measure(scenes=SCENES, repeats: int = 5, subs: list[SubBatch] | None = None,
 
     for d in range(4):
         if tests[d]:
-            out["dims"][DIM_NAMES[d]] = row(t_tester[d], t_micro[d], tests[d], scanned[d], covered[d],
-                                            micro_inside[d])
-    out["all"] = row(t_tester.sum(0), t_micro.sum(0), tests.sum(), scanned.sum(), covered.sum(), micro_inside.sum())
+            out["dims"][DIM_NAMES[d]] = row(t_tester[d], t_micro[d], t_brute[d], tests[d], scanned[d], covered[d],
+                                            micro_inside[d], tile_samples[d])
+    out["all"] = row(t_tester.sum(0), t_micro.sum(0), t_brute.sum(0), tests.sum(), scanned.sum(), covered.sum(),
+                     micro_inside.sum(), tile_samples.sum())
     return out
 
 
@@ -303,6 +322,17 @@ def format_table(res: dict) -> str:
                  f"{res['spp']} spp) in {res['sub_batches']} sub-batches from {', '.join(res['scenes'])}; medians "
                  f"of {res['repeats']} interleaved repeats; gathered tests == tester's samples_tested: "
                  f"{res['check_tested_equal']}")
+    lines.append("")
+    lines.append("the same records against a brute-force tester: the micro-kernel on every sample of each record's "
+                 "tile (the tester's input), no intervals")
+    lines.append(f"{'dims':>6} {'tile samples':>12} {'tester s':>9} {'brute s':>8} {'tester M/s':>10} "
+                 f"{'brute M/s':>10} {'tester/brute':>12}")
+    for name, r in list(res["dims"].items()) + [("all", res["all"])]:
+        lines.append(f"{name:>6} {r['tile_samples']:>12,} {r['tester_s']:>9.4f} {r['brute_s']:>8.4f} "
+                     f"{r['tester_rate_tile_samples'] / 1e6:>10.1f} {r['brute_rate'] / 1e6:>10.1f} "
+                     f"{r['ratio_brute']:>12.2f}")
+    lines.append("(rates in tile samples per second: a tester that skips samples outside a record's intervals "
+                 "handles its tile's samples faster than one that tests them all)")
     lines.append("tester's sample layout, built once per pass (not timed above): "
                  + ", ".join(f"{1e3 * x:.0f} ms" for x in res["layout_s"]))
     return "\n".join(lines)
