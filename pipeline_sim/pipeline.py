@@ -152,6 +152,20 @@ def _records(batch: Any) -> int:
     return len(batch) if hasattr(batch, "__len__") else 1
 
 
+def _put(env: simpy.Environment, stage: Stage, out: Channel, item: Any):
+    """Put ``item`` into ``out``, waiting for room; the wait is ``stage``'s blocked time. Returns when it went in."""
+    t1 = env.now
+    ev = out.store.put(item)
+    if ev is not None:
+        yield ev
+    t2 = env.now
+    out.record(t2)
+    stage.blocked += t2 - t1
+    if t2 > t1:
+        stage.trace.append((t1, t2, "blocked"))
+    return t2
+
+
 def _stage_process(env: simpy.Environment, stage: Stage, inp: Channel, out: Channel | None):
     """Get a batch, wait until it is ready, step the unit, stay busy its cycles, put its outputs.
 
@@ -172,14 +186,7 @@ def _stage_process(env: simpy.Environment, stage: Stage, inp: Channel, out: Chan
             if now > t0:
                 trace.append((t0, now, "starved"))
             if out is not None:
-                ev = out.store.put(END)
-                if ev is not None:
-                    yield ev
-                t2 = env.now
-                out.record(t2)
-                stage.blocked += t2 - now
-                if t2 > now:
-                    trace.append((now, t2, "blocked"))
+                yield from _put(env, stage, out, END)
             stage.finished = env.now
             return
         ready, payload, _ = item
@@ -198,19 +205,8 @@ def _stage_process(env: simpy.Environment, stage: Stage, inp: Channel, out: Chan
             now = env.now
         if out is None:
             continue
-        put = out.store.put
-        ready = now + stage.latency
-        for batch in outputs:
-            ev = put((ready, batch, None))
-            if ev is not None:
-                yield ev
-            t2 = env.now
-            out.record(t2)
-            stage.blocked += t2 - now
-            if t2 > now:
-                trace.append((now, t2, "blocked"))
-            now = t2
-            ready = now + stage.latency
+        for batch in outputs:  # each ready ``latency`` cycles after its put is issued
+            now = yield from _put(env, stage, out, (now + stage.latency, batch, None))
 
 
 def _source_process(env: simpy.Environment, batches: list[Any], out: Channel):
