@@ -31,7 +31,7 @@ END = None  # end-of-stream marker
 
 
 class Fifo:
-    """A bounded FIFO of ``(ready, batch, weight)`` items (and ``END``) between two stage processes.
+    """A bounded FIFO of ``(ready, batch)`` items (and ``END``) between two stage processes.
 
     Its capacity counts weights: one per item (a FIFO of ``depth`` batches)
     or the records of each batch (``by_records``; a batch of more records
@@ -71,13 +71,9 @@ class Fifo:
     def get(self) -> tuple[bool, Any]:
         """(True, item) when an item was there, else (False, an event that fires when one comes)."""
         if self.items:
-            return True, self._take()
+            return True, self.take()
         self._waiting_get = ev = self.env.event()
         return False, ev
-
-    def take(self) -> Any:
-        """The head item, after the event ``get`` returned has fired."""
-        return self._take()
 
     def _admit(self, item: Any, w: int) -> None:
         self.level += w
@@ -86,7 +82,8 @@ class Fifo:
             ev, self._waiting_get = self._waiting_get, None
             ev.succeed()
 
-    def _take(self) -> Any:
+    def take(self) -> Any:
+        """The head item (after the event ``get`` returned has fired); room it frees admits a waiting put."""
         item, w = self.items.popleft()
         self.level -= w
         if self._waiting_put is not None and self.level + self._waiting_put[2] <= self.capacity:
@@ -189,7 +186,7 @@ def _stage_process(env: simpy.Environment, stage: Stage, inp: Channel, out: Chan
                 yield from _put(env, stage, out, END)
             stage.finished = env.now
             return
-        ready, payload, _ = item
+        ready, payload = item
         if ready > now:
             yield env.timeout(ready - now)
             now = env.now
@@ -206,12 +203,12 @@ def _stage_process(env: simpy.Environment, stage: Stage, inp: Channel, out: Chan
         if out is None:
             continue
         for batch in outputs:  # each ready ``latency`` cycles after its put is issued
-            now = yield from _put(env, stage, out, (now + stage.latency, batch, None))
+            now = yield from _put(env, stage, out, (now + stage.latency, batch))
 
 
 def _source_process(env: simpy.Environment, batches: list[Any], out: Channel):
     for batch in batches + [END]:
-        ev = out.store.put((env.now, batch, None) if batch is not END else END)
+        ev = out.store.put((env.now, batch) if batch is not END else END)
         if ev is not None:
             yield ev
         out.record(env.now)
