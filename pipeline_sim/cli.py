@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import importlib.metadata
 import platform
@@ -23,16 +24,38 @@ did (counters) and how long it took (simulated cycles).
 """
 
 EPILOG = """\
-examples:
+'pipeline-sim COMMAND --help' gives each command's options and examples.
+File formats and outputs: docs/formats.md; the machine it simulates: docs/pipeline.md.
+
+example:
   pipeline-sim run workloads/scenes/default.toml --out runs/default
-  pipeline-sim run workloads/scenes/static.toml --spp 4 --tile 16 --out runs/static
-  pipeline-sim run scene.toml --set shading.cache_entries=512 --set zcull.time_slices=8 --out runs/x
-  pipeline-sim check workloads/scenes/default.toml
-  pipeline-sim arch --set tile_traverser.tile_size=16
-  pipeline-sim compare workloads/scenes/motion.toml --spp 16 --out runs/compare-motion
-  pipeline-sim sweep workloads/sweeps/quick.toml --out runs/quick
-  pipeline-sim report runs/quick -o runs/quick/report.html
 """
+
+#: Each command's own examples, shown by ``pipeline-sim COMMAND --help``.
+EXAMPLES = {
+    "run": ["pipeline-sim run workloads/scenes/default.toml --out runs/default",
+            "pipeline-sim run workloads/scenes/static.toml --spp 4 --tile 16 --out runs/static",
+            "pipeline-sim run workloads/scenes/motion.toml --set shading.cache_entries=512 "
+            "--set zcull.time_slices=8 --out runs/motion"],
+    "check": ["pipeline-sim check workloads/scenes/meshes.toml",
+              "pipeline-sim check workloads/scenes/default.toml --spp 64 --set zcull.time_slices=8"],
+    "arch": ["pipeline-sim arch --set tile_traverser.tile_size=16"],
+    "warmup": ["pipeline-sim warmup"],
+    "compare": ["pipeline-sim compare workloads/scenes/compare/motion_1x.toml --spp 4 --algorithms bbox hierarchical "
+                "--out runs/compare"],
+    "sweep": ["pipeline-sim sweep workloads/sweeps/quick.toml --out runs/quick",
+              "pipeline-sim sweep workloads/sweeps/accuracy_cost.toml --out runs/study --executor dask",
+              "pipeline-sim sweep s.toml --out runs/s --executor dask --scheduler tcp://10.0.0.5:8786"],
+    "report": ["pipeline-sim report runs/quick -o runs/quick/report.html"],
+}
+
+FORCE_HELP = ("write into an existing folder that pipeline-sim did not write: its own files are replaced, nothing "
+              "else there is removed (without it such a folder is refused)")
+
+
+def _epilog(command: str) -> str:
+    lines = EXAMPLES[command]
+    return ("example:\n" if len(lines) == 1 else "examples:\n") + "".join(f"  {line}\n" for line in lines)
 
 
 def _package_versions() -> dict[str, str]:
@@ -82,41 +105,42 @@ def _progress_bar(quiet: bool):
 
 def cmd_run(args) -> int:
     from pipeline_sim.jit import warm_up
-    from pipeline_sim.output import atomic_directory, write_exr, write_json, write_png
+    from pipeline_sim.output import write_exr, write_json, write_png
+    from pipeline_sim.output_folder import OutputFolder
     from pipeline_sim.render import render_scene
     from reports.run_report import headline, html_report, markdown_report, summary_text
 
     import numpy as np
 
     scene, arch = _load_inputs(args)
-    out_dir = Path(args.out)
-    compile_s = warm_up()
-    if not args.quiet:
-        print(f"numba kernels ready in {compile_s:.2f} s (compiled on first use, then loaded from cache)")
-    update, close = _progress_bar(args.quiet)
-    try:
-        result = render_scene(scene, arch, progress=update)
-    finally:
-        close()
-    info = {
-        "scene": str(args.scene),
-        "scene_digest": scene.digest,
-        "image": dataclasses.asdict(scene.image),
-        "seed": scene.image.seed,
-        "arch": arch.to_dict(),
-        "dimensions": result.dimensions,
-        "units_used": result.units_used,
-        "bypassed": [u for u in ("zcull", "sample_tester") if u not in result.units_used],
-        "screen_regions": result.region_info,
-        "frame_cycles": result.timing.frame_cycles,
-        "headline": headline(result),
-        "wall_time_s": result.wall_time,
-        "compile_time_s": compile_s,
-        "versions": _package_versions(),
-        "command": sys.argv,
-        "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-    }
-    with atomic_directory(out_dir) as tmp:
+    with OutputFolder(args.out, "run", force=args.force) as out:
+        compile_s = warm_up()
+        if not args.quiet:
+            print(f"numba kernels ready in {compile_s:.2f} s (compiled on first use, then loaded from cache)")
+        update, close = _progress_bar(args.quiet)
+        try:
+            result = render_scene(scene, arch, progress=update)
+        finally:
+            close()
+        info = {
+            "scene": str(args.scene),
+            "scene_digest": scene.digest,
+            "image": dataclasses.asdict(scene.image),
+            "seed": scene.image.seed,
+            "arch": arch.to_dict(),
+            "dimensions": result.dimensions,
+            "units_used": result.units_used,
+            "bypassed": [u for u in ("zcull", "sample_tester") if u not in result.units_used],
+            "screen_regions": result.region_info,
+            "frame_cycles": result.timing.frame_cycles,
+            "headline": headline(result),
+            "wall_time_s": result.wall_time,
+            "compile_time_s": compile_s,
+            "versions": _package_versions(),
+            "command": sys.argv,
+            "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        }
+        tmp = out.staging
         np.save(tmp / "image.npy", result.image)
         write_exr(tmp / "image.exr", result.image)
         write_png(tmp / "image.png", result.image)
@@ -126,8 +150,9 @@ def cmd_run(args) -> int:
         write_json(tmp / "run.json", info)
         (tmp / "report.md").write_text(markdown_report(result, info, files_dir=tmp / "report_files"))
         (tmp / "report.html").write_text(html_report(result, info))
+        out.commit()
     if not args.quiet:
-        print(summary_text(result, title=f"{args.scene} -> {out_dir}"))
+        print(summary_text(result, title=f"{args.scene} -> {args.out}"))
     return 0
 
 
@@ -161,28 +186,20 @@ def cmd_warmup(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    from pipeline_sim.compare import compare, format_checks, format_table, parse_algorithms, write_comparison
+    from pipeline_sim.compare import format_checks, format_table, parse_algorithms, write_comparison
+    from pipeline_sim.output_folder import OutputFolder
 
     algorithms = parse_algorithms(args.algorithms)
     scene, arch = _load_inputs(args)
-    compile_s = warm_up_quietly()
-
-    def progress(name, row):
-        if not args.quiet:
-            print(f"  {name}: STE {100 * row['ste']:.2f}%, {row['samples_tested']:,} samples tested, "
-                  f"{row['frame_cycles']:,.0f} cycles, {row['wall_time_s']:.2f} s", file=sys.stderr)
-
-    reference = None
-    if args.reference_spp:
-        from pipeline_sim.accuracy import ReferenceSpec, reference_image
-
-        reference = reference_image(scene, ReferenceSpec(spp=args.reference_spp), arch=arch)
-    comp = compare(scene, arch, algorithms, progress=progress, reference=reference)
-    info = {"scene": str(args.scene), "scene_digest": scene.digest, "image": dataclasses.asdict(scene.image),
-            "arch": arch.to_dict(), "algorithms": algorithms, "compile_time_s": compile_s,
-            "versions": _package_versions()}
-    if args.out:
-        write_comparison(comp, Path(args.out), info)
+    with contextlib.ExitStack() as stack:
+        out = stack.enter_context(OutputFolder(args.out, "compare", force=args.force)) if args.out else None
+        comp, compile_s = _compare_all(args, scene, arch, algorithms)
+        info = {"scene": str(args.scene), "scene_digest": scene.digest, "image": dataclasses.asdict(scene.image),
+                "arch": arch.to_dict(), "algorithms": algorithms, "compile_time_s": compile_s,
+                "versions": _package_versions()}
+        if out is not None:
+            write_comparison(comp, out.staging, info)
+            out.commit()
     if not args.quiet:
         print(format_table(comp.table))
         if comp.checks:
@@ -196,10 +213,25 @@ def cmd_compare(args) -> int:
     return 0
 
 
-def warm_up_quietly() -> float:
+def _compare_all(args, scene, arch, algorithms):
+    """Render ``scene`` with each algorithm (and the reference, if asked); return the comparison and compile time."""
+    from pipeline_sim.compare import compare
     from pipeline_sim.jit import warm_up
 
-    return warm_up()
+    compile_s = warm_up()
+
+    def progress(name, row):
+        if not args.quiet:
+            print(f"  {name}: STE {100 * row['ste']:.2f}%, {row['samples_tested']:,} samples tested, "
+                  f"{row['frame_cycles']:,.0f} cycles, {row['wall_time_s']:.2f} s", file=sys.stderr)
+
+    reference = None
+    if args.reference_spp:
+        from pipeline_sim.accuracy import ReferenceSpec, reference_image
+
+        reference = reference_image(scene, ReferenceSpec(spp=args.reference_spp), arch=arch)
+    comp = compare(scene, arch, algorithms, progress=progress, reference=reference)
+    return comp, compile_s
 
 
 def cmd_sweep(args) -> int:
@@ -207,7 +239,7 @@ def cmd_sweep(args) -> int:
 
     spec = load_sweep(args.sweep)
     points = run_sweep(spec, args.out, executor=args.executor, workers=args.workers, scheduler=args.scheduler,
-                       progress=not args.quiet, retry_errors=args.retry_errors)
+                       progress=not args.quiet, retry_errors=args.retry_errors, force=args.force)
     if not args.quiet:
         bad = int((points.status != "ok").sum())
         print(f"{len(points)} points in {Path(args.out) / 'points.csv'} ({bad} failed)")
@@ -218,7 +250,7 @@ def cmd_report(args) -> int:
     from reports.sweep_report import build_report
 
     out = Path(args.out) if args.out else Path(args.sweep_dir) / "report.html"
-    path = build_report(args.sweep_dir, out, metric=args.metric, cost=args.cost)
+    path = build_report(args.sweep_dir, out, metric=args.metric, cost=args.cost, force=args.force)
     print(f"report: {path} (Markdown twin: {path.with_suffix('.md')})")
     return 0
 
@@ -232,7 +264,9 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("scene", metavar="SCENE.toml", help="scene file (format: README, 'Scene files')")
         if out:
             p.add_argument("--out", "-o", required=True, metavar="DIR",
-                           help="output folder (replaced whole when the run succeeds)")
+                           help="output folder: new, empty, or one pipeline-sim wrote (replaced whole when the run "
+                           "succeeds); checked before the simulation starts")
+            p.add_argument("--force", action="store_true", help=FORCE_HELP)
         p.add_argument("--spp", type=int, help="samples per pixel (overrides [image].spp)")
         p.add_argument("--seed", type=int, help="sampling seed (overrides [image].seed)")
         p.add_argument("--tile", type=int, help="tile size in pixels (same as --set tile_traverser.tile_size=N)")
@@ -244,19 +278,23 @@ def build_parser() -> argparse.ArgumentParser:
                          description="Simulate SCENE.toml and write into DIR: image.npy, image.exr (linear "
                          "float RGBA), image.png (8-bit sRGB), counters.csv (one row per unit and counter), "
                          "timing.csv (busy/starved/blocked cycles per unit), queues.csv, run.json (full "
-                         "configuration, scene digest, versions, seed, wall time) and report.md/report.html.",
-                         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+                         "configuration, scene digest, versions, seed, wall time) and report.md/report.html. "
+                         "Formats: docs/formats.md.",
+                         epilog=_epilog("run"), formatter_class=argparse.RawDescriptionHelpFormatter)
     scene_args(run, out=True)
     run.add_argument("--quiet", "-q", action="store_true", help="print nothing on success")
     run.set_defaults(func=cmd_run)
 
     check = sub.add_parser("check", help="validate a scene and architecture without simulating",
-                           description="Load and validate SCENE.toml and the architecture; print a summary.")
+                           description="Load and validate SCENE.toml and the architecture, as `run` would before "
+                           "simulating; print a summary.", epilog=_epilog("check"),
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
     scene_args(check, out=False)
     check.set_defaults(func=cmd_check)
 
     arch = sub.add_parser("arch", help="print the resolved architecture as TOML",
-                          description="Print the architecture (shipped default, then --arch, then --set) as TOML.")
+                          description="Print the architecture (shipped default, then --arch, then --set) as TOML.",
+                          epilog=_epilog("arch"), formatter_class=argparse.RawDescriptionHelpFormatter)
     arch.add_argument("--arch", metavar="FILE", help="architecture TOML applied over the shipped default")
     arch.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help="override one setting")
     arch.set_defaults(func=cmd_arch)
@@ -271,13 +309,15 @@ def build_parser() -> argparse.ArgumentParser:
                           "executions, simulated cycles and wall time. The images must be identical (every "
                           "algorithm is conservative); the command checks it and exits with status 1 if not. "
                           "Algorithms: " + "; ".join(f"{k}: {v}" for k, v in DESCRIPTIONS.items()),
-                          epilog="example:\n  pipeline-sim compare workloads/scenes/motion.toml --spp 16 "
-                          "--algorithms bbox box hierarchical --out runs/compare-motion",
+                          epilog=_epilog("compare"),
                           formatter_class=argparse.RawDescriptionHelpFormatter)
     comp.add_argument("scene", metavar="SCENE.toml", help="scene file")
     comp.add_argument("--algorithms", nargs="+", metavar="NAME", choices=list(ALGORITHMS),
                       help=f"algorithms to compare (default: all of {', '.join(ALGORITHMS)})")
-    comp.add_argument("--out", "-o", metavar="DIR", help="write the table, chart and images here")
+    comp.add_argument("--out", "-o", metavar="DIR",
+                      help="write the table, chart and images here (new, empty, or a folder pipeline-sim wrote; "
+                      "checked before the algorithms run)")
+    comp.add_argument("--force", action="store_true", help=FORCE_HELP)
     comp.add_argument("--spp", type=int, help="samples per pixel (overrides [image].spp)")
     comp.add_argument("--seed", type=int, help="sampling seed (overrides [image].seed)")
     comp.add_argument("--tile", type=int, help="tile size in pixels")
@@ -289,17 +329,18 @@ def build_parser() -> argparse.ArgumentParser:
     comp.set_defaults(func=cmd_compare)
 
     sweep = sub.add_parser("sweep", help="run (or resume) a what-if sweep over scene and architecture settings",
-                           description="Run every point of SWEEP.toml (format: README, 'Sweep files') in its own "
+                           description="Run every point of SWEEP.toml (format: docs/formats.md, 'Sweep files') in its own "
                            "worker process and write DIR/points.csv (one row per point), DIR/results.csv (tidy: one "
                            "row per point and counter or metric) and DIR/points/<id>/ (image, error map, counters, "
                            "timing, trace, resolved config). Running the same command again resumes: finished "
                            "points are not recomputed. A failing point is recorded with its error and the sweep goes on.",
-                           epilog="examples:\n  pipeline-sim sweep workloads/sweeps/quick.toml --out runs/quick\n"
-                           "  pipeline-sim sweep workloads/sweeps/accuracy_cost.toml --out runs/study --executor dask\n"
-                           "  pipeline-sim sweep s.toml --out runs/s --executor dask --scheduler tcp://10.0.0.5:8786",
+                           epilog=_epilog("sweep"),
                            formatter_class=argparse.RawDescriptionHelpFormatter)
     sweep.add_argument("sweep", metavar="SWEEP.toml", help="sweep file")
-    sweep.add_argument("--out", "-o", required=True, metavar="DIR", help="results folder (resumed if it exists)")
+    sweep.add_argument("--out", "-o", required=True, metavar="DIR",
+                       help="results folder: new, empty, or an earlier run of the same sweep (resumed)")
+    sweep.add_argument("--force", action="store_true",
+                       help="write the sweep into an existing folder that holds other files (none is removed)")
     sweep.add_argument("--executor", choices=("local", "dask", "serial"), default="local",
                        help="local: a process pool on this machine (default); dask: a Dask cluster (--scheduler, or "
                        "a local cluster on 127.0.0.1); serial: in this process")
@@ -314,17 +355,22 @@ def build_parser() -> argparse.ArgumentParser:
                             "resources) and a Markdown twin from a sweep results folder: error against cost with "
                             "the Pareto frontier, counters, per-unit cycles and bottlenecks, parameters against "
                             "metrics, images with error maps, the pipeline and a timeline of one point.",
-                            epilog="example:\n  pipeline-sim report runs/quick -o runs/quick/report.html",
+                            epilog=_epilog("report"),
                             formatter_class=argparse.RawDescriptionHelpFormatter)
     report.add_argument("sweep_dir", metavar="DIR", help="a folder written by `pipeline-sim sweep`")
-    report.add_argument("--out", "-o", metavar="FILE.html", help="output file (default: DIR/report.html)")
+    report.add_argument("--out", "-o", metavar="FILE.html",
+                        help="output file (default: DIR/report.html); FILE.md and the folder FILE_files/ are "
+                        "written beside it")
+    report.add_argument("--force", action="store_true",
+                        help="replace those outputs even where an existing one was not written by pipeline-sim")
     report.add_argument("--metric", default="flip", help="error metric: rmse, psnr, ssim or flip (default flip)")
     report.add_argument("--cost", default="frame_cycles",
                         help="cost column: frame_cycles (default), ops_total or wall_time_s")
     report.set_defaults(func=cmd_report)
 
     warm = sub.add_parser("warmup", help="compile (or load from cache) all numba kernels and print the time",
-                          description="Compile every numba kernel, or load it from the cache, and print the time.")
+                          description="Compile every numba kernel, or load it from the cache, and print the time.",
+                          epilog=_epilog("warmup"), formatter_class=argparse.RawDescriptionHelpFormatter)
     warm.set_defaults(func=cmd_warmup)
     return parser
 
@@ -337,6 +383,10 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as exc:
         print(f"pipeline-sim: error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
+    except OSError as exc:   # the machine, not the input: a full disk, a folder made read-only mid-run
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"pipeline-sim: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("pipeline-sim: interrupted (a sweep keeps its finished points: run it again to resume)",
               file=sys.stderr)

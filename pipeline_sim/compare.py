@@ -221,21 +221,26 @@ def comparison_figure(table: pd.DataFrame):
     return fig
 
 
-def write_comparison(comp: Comparison, out_dir: Path, info: dict) -> None:
-    """Write table.csv, comparison.json, comparison.png and one image per algorithm."""
-    from pipeline_sim.output import atomic_directory, write_json, write_png
+def write_comparison(comp: Comparison, folder: Path, info: dict) -> None:
+    """Write table.csv, comparison.json, comparison.png and one image per algorithm into ``folder``.
+
+    ``folder`` is the staging folder of a claimed
+    :class:`~pipeline_sim.output_folder.OutputFolder` (the CLI claims it
+    before the algorithms run).
+    """
+    from pipeline_sim.output import write_json, write_png
     from reports.figures import figure_png
 
-    with atomic_directory(Path(out_dir)) as tmp:
-        comp.table.to_csv(tmp / "table.csv", index=False)
-        write_json(tmp / "comparison.json", {**info, "identical_images": comp.identical,
-                                              "differing": comp.differing, "paper_checks": comp.checks,
-                                              "rows": comp.table.to_dict("records")})
-        (tmp / "comparison.png").write_bytes(figure_png(comparison_figure(comp.table)))
-        for name, img in comp.images.items():
-            stem = f"image_{name.replace('+', '_').replace('/', '_')}"
-            write_png(tmp / f"{stem}.png", img)
-            np.save(tmp / f"{stem}.npy", img)
+    tmp = Path(folder)
+    comp.table.to_csv(tmp / "table.csv", index=False)
+    write_json(tmp / "comparison.json", {**info, "identical_images": comp.identical,
+                                          "differing": comp.differing, "paper_checks": comp.checks,
+                                          "rows": comp.table.to_dict("records")})
+    (tmp / "comparison.png").write_bytes(figure_png(comparison_figure(comp.table)))
+    for name, img in comp.images.items():
+        stem = f"image_{name.replace('+', '_').replace('/', '_')}"
+        write_png(tmp / f"{stem}.png", img)
+        np.save(tmp / f"{stem}.npy", img)
 
 
 def format_table(table: pd.DataFrame) -> str:

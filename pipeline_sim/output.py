@@ -1,8 +1,8 @@
-"""Writing a run's outputs: images, counters, timing, run.json, report.
+"""Writing a run's outputs: images, JSON, and single files replaced atomically.
 
-Everything is written into a temporary sibling folder first and moved into
-place at the end, so an interrupted or failed run never leaves a half
-written output folder.
+Whole output folders are claimed and written through
+:class:`pipeline_sim.output_folder.OutputFolder`; single files through
+:func:`atomic_write_bytes` (a temporary sibling renamed over the target).
 """
 
 from __future__ import annotations
@@ -10,15 +10,14 @@ from __future__ import annotations
 import io
 import json
 import os
-import shutil
 import tempfile
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 import OpenEXR
 from PIL import Image
+
+from pipeline_sim.output_folder import ordinary_mode, staging_prefix
 
 
 def linear_to_srgb8(image: np.ndarray) -> np.ndarray:
@@ -62,11 +61,20 @@ def _json_default(obj):
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to a temporary sibling, flush it to disk, then rename it over ``path``."""
+    """Write ``data`` to a temporary sibling, flush it to disk, then rename it over ``path``.
+
+    The file gets the mode an existing ``path`` had, else the umask's
+    ordinary mode (not the temporary file's private 0600).
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        mode = os.stat(path).st_mode & 0o7777
+    except OSError:
+        mode = ordinary_mode(directory=False)
+    fd, tmp = tempfile.mkstemp(prefix=staging_prefix(path.name), suffix=".tmp", dir=path.parent)
+    try:
+        os.fchmod(fd, mode)
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
             fh.flush()
@@ -90,24 +98,3 @@ def atomic_save_npy(path: Path, array: np.ndarray) -> None:
     buf = io.BytesIO()
     np.save(buf, array, allow_pickle=False)
     atomic_write_bytes(path, buf.getvalue())
-
-
-@contextmanager
-def atomic_directory(target: Path) -> Iterator[Path]:
-    """Yield a temporary folder; on success it replaces ``target`` whole."""
-    target = Path(target)
-    parent = target.resolve().parent
-    parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent))
-    try:
-        yield tmp
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    old = None
-    if target.exists():
-        old = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=parent))
-        os.replace(target, old / "previous")
-    os.replace(tmp, target)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)

@@ -72,7 +72,6 @@ import json
 import math
 import os
 import platform
-import shutil
 import sys
 import time
 import tomllib
@@ -86,6 +85,7 @@ import pandas as pd
 
 from pipeline_sim.errors import UserError, did_you_mean, unknown_key_error
 from pipeline_sim.output import atomic_write_text
+from pipeline_sim.output_folder import ANY_NAME, OutputFolder, check_writable_folder, clean_leftovers
 
 __all__ = [
     "SweepSpec", "load_sweep", "point_id", "run_point", "run_sweep", "SUMMARY_FIELDS", "HOST_TIMING_FIELDS",
@@ -534,7 +534,7 @@ def _run_point(spec: dict[str, Any], params: dict[str, Any], out: Path,
     from pipeline_sim.cli import _package_versions
     from pipeline_sim.config import load_arch
     from pipeline_sim.jit import warm_up
-    from pipeline_sim.output import atomic_directory, write_json, write_png
+    from pipeline_sim.output import write_json, write_png
     from pipeline_sim.render import render_scene
     from pipeline_sim.scene import load_scene
 
@@ -586,7 +586,9 @@ def _run_point(spec: dict[str, Any], params: dict[str, Any], out: Path,
     }
     trace = {"units": result.timing.traces, "queues": result.timing.queue_series,
              "frame_cycles": result.timing.frame_cycles}
-    with atomic_directory(out / "points" / pid) as tmp:
+    # the point's folder is the sweep's own: a folder left by an earlier try is written over
+    with OutputFolder(out / "points" / pid, "sweep point", force=True) as folder:
+        tmp = folder.staging
         np.save(tmp / "image.npy", result.image)
         np.save(tmp / "error_map.npy", np.asarray(emap, dtype=np.float32))
         write_png(tmp / "image.png", result.image)
@@ -595,6 +597,7 @@ def _run_point(spec: dict[str, Any], params: dict[str, Any], out: Path,
         result.timing.queues.to_csv(tmp / "queues.csv", index=False)
         (tmp / "trace.json").write_text(_json_text(trace, indent=None))
         write_json(tmp / "run.json", info)
+        folder.commit()
     counters = [[str(u), str(n), int(v)] for u, n, v in result.counters.itertuples(index=False)]
     return summary, counters
 
@@ -678,18 +681,22 @@ def _folder_lock(out: Path) -> Iterator[None]:
 
 
 def _clean_leftovers(out: Path) -> None:
-    """Remove temporary files and folders a killed run left behind."""
-    for sub in ("points", "records"):
-        folder = out / sub
-        if not folder.is_dir():
-            continue
-        for entry in folder.iterdir():
-            if entry.name.startswith(".") and entry.name.endswith((".tmp", ".old")):
-                if entry.is_dir():
-                    shutil.rmtree(entry, ignore_errors=True)
-                else:
-                    with contextlib.suppress(OSError):
-                        entry.unlink()
+    """Remove the temporary files and folders killed processes left in the sweep folder."""
+    for folder in (out, out / "points", out / "records"):
+        clean_leftovers(folder, ANY_NAME)
+
+
+def _claim_folder(out: Path, force: bool) -> None:
+    """Refuse a folder that holds something other than a sweep's results, unless ``force``; check it is writable."""
+    if os.path.lexists(out) and not out.is_dir():
+        raise UserError(f"--out {out}: exists and is not a folder; give a new, empty or sweep results folder")
+    if out.is_dir() and not force and not (out / "sweep.json").is_file():
+        foreign = sorted(e.name for e in out.iterdir())
+        if foreign:
+            shown = ", ".join(foreign[:3]) + (", ..." if len(foreign) > 3 else "")
+            raise UserError(f"--out {out}: exists and does not hold a sweep's results ({shown}); give a new or "
+                            "empty folder, or add --force to write the sweep into it (nothing there is removed)")
+    check_writable_folder(out, "--out")
 
 
 def _prepare_folder(spec: SweepSpec, out: Path) -> None:
@@ -828,7 +835,8 @@ def _run_dask(spec_dict: dict, pending: list[dict], out: Path, workers: int, sch
 
 
 def run_sweep(spec: SweepSpec, out_dir: str | Path, *, executor: str = "local", workers: int | None = None,
-              scheduler: str | None = None, progress: bool = True, retry_errors: bool = False) -> pd.DataFrame:
+              scheduler: str | None = None, progress: bool = True, retry_errors: bool = False,
+              force: bool = False) -> pd.DataFrame:
     """Run every point of ``spec`` not already done in ``out_dir``; return the points table.
 
     ``executor``: ``"local"`` (a spawn process pool of ``workers``, default
@@ -836,6 +844,8 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, *, executor: str = "local", 
     LocalCluster of ``workers`` processes on 127.0.0.1, closed at the end) or
     ``"serial"`` (in this process). Finished points (a record exists) are
     never run again; ``retry_errors`` reruns points recorded as errors.
+    ``out_dir`` must be new, empty or a sweep's results folder; ``force``
+    writes the sweep into any other folder without removing anything there.
     """
     if executor not in EXECUTORS:
         raise UserError(f"executor: unknown executor '{executor}'{did_you_mean(executor, EXECUTORS)}; "
@@ -843,7 +853,7 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, *, executor: str = "local", 
     if workers is not None and workers < 1:
         raise UserError(f"workers: must be at least 1, got {workers}")
     out = Path(out_dir).resolve()
-    out.mkdir(parents=True, exist_ok=True)
+    _claim_folder(out, force)
     with _folder_lock(out):
         _clean_leftovers(out)
         _prepare_folder(spec, out)

@@ -30,9 +30,6 @@ from __future__ import annotations
 import html
 import json
 import math
-import os
-import shutil
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -42,9 +39,15 @@ import pandas as pd
 
 from pipeline_sim.errors import UserError, did_you_mean
 from pipeline_sim.output import atomic_write_bytes
+from pipeline_sim.output_folder import OutputFolder, check_output_file
 from reports import figures as F
 
 __all__ = ["Sweep", "load_sweep", "build_report", "select_images", "representative_point"]
+
+#: How the reports this module writes begin: what marks an existing file as this tool's own.
+GENERATOR_META = '<meta name="generator" content="pipeline-sim">'
+HTML_SIGNATURES = (GENERATOR_META, "<title>pipeline-sim")
+MARKDOWN_SIGNATURE = "# pipeline-sim"
 
 #: Columns of points.csv that are not parameters.
 BASE_COLUMNS = ("point_id", "status", "error", "frame_cycles", "wall_time_s", "ops_total", "samples_tested",
@@ -453,7 +456,7 @@ class _Doc:
                "nav ul{columns:2;font-size:.92em}code{background:#f4f4f4;padding:0 3px}"
                ".err{font-family:monospace;color:#8a0010}")
         out = ["<!doctype html>", '<html lang="en"><head><meta charset="utf-8">',
-               '<meta name="viewport" content="width=device-width, initial-scale=1">',
+               '<meta name="viewport" content="width=device-width, initial-scale=1">', GENERATOR_META,
                f"<title>{html.escape(self.title)}</title>", f"<style>{css}</style></head><body>",
                f"<h1>{html.escape(self.title)}</h1>"]
         if self.sections:
@@ -503,29 +506,6 @@ class _Doc:
             elif kind == "fig":
                 out += [f"![{data.title}]({files_name}/{data.filename})", "", f"*{data.title}.* {data.caption}", ""]
         return "\n".join(out)
-
-
-# ---------------------------------------------------------------------------
-# atomic writing
-
-
-def _atomic_dir(target: Path, files: dict[str, bytes]) -> None:
-    """Write ``files`` into a fresh folder that replaces ``target`` whole."""
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
-    try:
-        for name, data in files.items():
-            (tmp / name).write_bytes(data)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    old = None
-    if target.exists():
-        old = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=target.parent))
-        os.replace(target, old / "previous")
-    os.replace(tmp, target)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
 
 
 # ---------------------------------------------------------------------------
@@ -590,14 +570,34 @@ def _sorted_values(s: pd.Series) -> list:
 
 
 def build_report(sweep_dir: str | Path, out_html: str | Path, *, metric: str = "flip",
-                 cost: str = "frame_cycles") -> Path:
-    """Write the sweep report (HTML, its Markdown twin and the twin's PNGs); return the HTML path."""
+                 cost: str = "frame_cycles", force: bool = False) -> Path:
+    """Write the sweep report (HTML, its Markdown twin and the twin's PNGs); return the HTML path.
+
+    The three outputs (``X.html``, ``X.md``, the folder ``X_files/``) are
+    checked before anything is built: one that exists and was not written
+    by this tool is refused unless ``force`` (see
+    :mod:`pipeline_sim.output_folder`).
+    """
     sw = load_sweep(sweep_dir)
     _check_choice(sw, "metric", metric, METRIC_COLUMNS)
     _check_choice(sw, "cost", cost, COST_COLUMNS)
     out_html = Path(out_html)
     out_md = out_html.with_suffix(".md")
     files_dir = out_html.parent / f"{out_html.stem}_files"
+    check_output_file(out_html, HTML_SIGNATURES, force=force, option="-o")
+    check_output_file(out_md, (MARKDOWN_SIGNATURE,), force=force, option="-o")
+    with OutputFolder(files_dir, "report figures", force=force, option="-o") as figures:
+        doc = _document(sw, metric, cost)
+        for f in doc.figures:
+            (figures.staging / f.filename).write_bytes(f.png)
+        figures.commit()
+    atomic_write_bytes(out_md, doc.markdown(files_dir.name).encode("utf-8"))
+    atomic_write_bytes(out_html, doc.html().encode("utf-8"))
+    return out_html
+
+
+def _document(sw: Sweep, metric: str, cost: str) -> _Doc:
+    """The report of ``sw``, figures and tables, ready to render as HTML or Markdown."""
     ok = _order_by_cost(sw.ok, cost)
     front = _pareto(ok, metric, cost)
     color_by = "image.spp" if "image.spp" in sw.swept else (
@@ -802,11 +802,7 @@ def build_report(sweep_dir: str | Path, out_html: str | Path, *, metric: str = "
     else:
         doc.p("None: every point ran.")
 
-    files = {f.filename: f.png for f in doc.figures}
-    _atomic_dir(files_dir, files)
-    atomic_write_bytes(out_md, doc.markdown(files_dir.name).encode("utf-8"))
-    atomic_write_bytes(out_html, doc.html().encode("utf-8"))
-    return out_html
+    return doc
 
 
 def _accuracy_figure(acc: pd.DataFrame, metric: str, costs: list[str], color_by: str | None):

@@ -1,8 +1,14 @@
 """The command line: outputs of `run`, help texts, and one-line errors for bad input."""
 
 import json
+import os
+import shlex
+import signal
+import stat
 import subprocess
 import sys
+import time
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -146,13 +152,211 @@ def test_sweep_and_report_commands(root, tmp_path):
     mtimes = {p.name: p.stat().st_mtime_ns for p in (out / "records").iterdir()}
     assert main(["sweep", str(sweep), "--out", str(out), "--quiet"]) == 0  # resume: nothing recomputed
     assert {p.name: p.stat().st_mtime_ns for p in (out / "records").iterdir()} == mtimes
+    assert stat.S_IMODE((out / "points.csv").stat().st_mode) == 0o666 & ~_current_umask()
     assert main(["report", str(out), "-o", str(out / "r.html")]) == 0
     html = (out / "r.html").read_text()
     assert html.count("data:image/png;base64,") >= 5
     assert (out / "r.md").exists()
 
 
+def _current_umask():
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def test_report_of_a_non_sweep_folder_is_a_user_error(tmp_path):
     res = subprocess.run([sys.executable, "-m", "pipeline_sim", "report", str(tmp_path)], capture_output=True,
                          text=True)
     assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1 and "Traceback" not in res.stderr
+
+
+# ---------------------------------------------------------------------------
+# output locations: never destroy what the tool did not write (pipeline_sim/output_folder.py)
+
+
+def _cli(*args, cwd=None, umask=None):
+    preexec = (lambda: os.umask(umask)) if umask is not None else None
+    return subprocess.run([sys.executable, "-m", "pipeline_sim", *map(str, args)], capture_output=True, text=True,
+                          cwd=cwd, preexec_fn=preexec)
+
+
+def _one_line_error(res, needle):
+    assert res.returncode == 2, res.stderr
+    err = res.stderr.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err and needle in err, err
+    assert "numba kernels ready" not in res.stdout   # refused before any simulation
+
+
+def _tree(root):
+    return {str(p.relative_to(root)): (p.read_bytes() if p.is_file() else None) for p in sorted(root.rglob("*"))}
+
+
+def test_out_an_existing_file_is_refused(small_scene, tmp_path):
+    f = tmp_path / "some_file"
+    f.write_text("precious")
+    before = _tree(tmp_path)
+    _one_line_error(_cli("run", small_scene, "--out", f), "not a folder")
+    _one_line_error(_cli("run", small_scene, "--out", f, "--force"), "not a folder")
+    assert _tree(tmp_path) == before
+
+
+def test_out_a_folder_with_other_files_is_refused_unless_forced(small_scene, tmp_path):
+    d = tmp_path / "mydir"
+    d.mkdir()
+    (d / "thesis.txt").write_text("years of work")
+    before = _tree(tmp_path)
+    _one_line_error(_cli("run", small_scene, "--out", d, "-q"), "thesis.txt")
+    assert _tree(tmp_path) == before
+    res = _cli("run", small_scene, "--out", d, "-q", "--force")
+    assert res.returncode == 0, res.stderr
+    assert (d / "thesis.txt").read_text() == "years of work" and (d / "image.npy").is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mydir", "small.toml"]
+
+
+def test_out_dot(small_scene, tmp_path):
+    """`--out .`: refused in a folder of the user's files; rewritten in place in a folder the tool wrote."""
+    work = tmp_path / "work"
+    work.mkdir()
+    (work / "notes.txt").write_text("mine")
+    _one_line_error(_cli("run", small_scene, "--out", ".", "-q", cwd=work), "notes.txt")
+    (work / "notes.txt").unlink()
+    res = _cli("run", small_scene, "--out", ".", "-q", cwd=work)      # empty: fine
+    assert res.returncode == 0, res.stderr
+    res = _cli("run", small_scene, "--out", ".", "-q", "--seed", "5", cwd=work)   # the tool's own: again
+    assert res.returncode == 0, res.stderr
+    assert json.loads((work / "run.json").read_text())["seed"] == 5
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["small.toml", "work"]   # nothing hidden beside it
+    assert not [p for p in work.iterdir() if p.name.startswith(".") and p.name != ".pipeline-sim.json"]
+
+
+def _read_only_mount_available():
+    import shutil
+
+    if shutil.which("unshare") is None:
+        return False
+    probe = subprocess.run(["unshare", "-m", "sh", "-c", "mount -t tmpfs -o ro tmpfs /mnt"], capture_output=True)
+    return probe.returncode == 0
+
+
+@pytest.mark.skipif(not _read_only_mount_available(), reason="needs unshare -m and mount (a read-only tmpfs)")
+def test_read_only_file_system_is_refused_before_the_work(small_scene, tmp_path, root, sweep_results):
+    """Every command that writes checks its destination first: one line, exit 2, no simulation run."""
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    commands = {
+        "run": ["run", small_scene, "--out", ro / "run"],
+        "compare": ["compare", small_scene, "--algorithms", "bbox", "hierarchical", "--out", ro / "cmp"],
+        "sweep": ["sweep", root / "workloads/sweeps/quick.toml", "--out", ro / "sweep"],
+        "report": ["report", sweep_results, "-o", ro / "report.html"],
+    }
+    for name, args in commands.items():
+        cli = " ".join(shlex.quote(str(a)) for a in [sys.executable, "-m", "pipeline_sim", *args])
+        res = subprocess.run(["unshare", "-m", "sh", "-c", f"mount -t tmpfs -o ro tmpfs {shlex.quote(str(ro))} "
+                              f"&& {cli}"], capture_output=True, text=True)
+        _one_line_error(res, "Read-only file system")
+        assert "STE" not in res.stdout + res.stderr, name
+
+
+def test_unwritable_path_is_refused_before_the_work(small_scene, tmp_path, sweep_results):
+    """A destination under a regular file cannot be created, whoever runs the tool (root included)."""
+    (tmp_path / "f").write_text("x")
+    _one_line_error(_cli("run", small_scene, "--out", tmp_path / "f" / "out"), "cannot write")
+    _one_line_error(_cli("compare", small_scene, "--algorithms", "bbox", "--out", tmp_path / "f" / "c"),
+                    "cannot write")
+    _one_line_error(_cli("report", sweep_results, "-o", tmp_path / "f" / "r.html"), "is not a folder")
+    assert (tmp_path / "f").read_text() == "x"
+
+
+def test_sigkill_while_writing_leaves_the_previous_outputs_and_the_next_run_cleans_up(small_scene, tmp_path):
+    out = tmp_path / "out"
+    assert _cli("run", small_scene, "--out", out, "-q").returncode == 0
+    before = _tree(out)
+    killed = False
+    for _ in range(5):   # the write phase lasts about a second; kill inside it
+        proc = subprocess.Popen([sys.executable, "-m", "pipeline_sim", "run", str(small_scene), "--out", str(out),
+                                 "--seed", "7", "-q"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        deadline = time.monotonic() + 120
+        while proc.poll() is None and time.monotonic() < deadline:
+            staging = [p for p in tmp_path.glob(".out.pipeline-sim-*.tmp") if (p / "image.npy").exists()]
+            if staging:
+                proc.send_signal(signal.SIGKILL)
+                proc.wait()
+                killed = True
+                break
+            time.sleep(0.002)
+        if killed:
+            break
+        proc.wait()
+        if proc.returncode == 0:   # finished before it was caught: restore the first outputs and try again
+            assert _cli("run", small_scene, "--out", out, "-q").returncode == 0
+            before = _tree(out)
+    assert killed, "never caught the run while it wrote its outputs"
+    assert _tree(out) == before                                     # the previous outputs, untouched
+    assert list(tmp_path.glob(".out.pipeline-sim-*.tmp"))           # what the killed write left
+    res = _cli("run", small_scene, "--out", out, "--seed", "7", "-q")
+    assert res.returncode == 0, res.stderr
+    assert not list(tmp_path.glob(".out.*"))                        # recognised and removed
+    assert json.loads((out / "run.json").read_text())["seed"] == 7
+
+
+def test_written_files_have_the_umask_modes(small_scene, tmp_path):
+    out = tmp_path / "runs" / "default"
+    assert _cli("run", small_scene, "--out", out, "-q", umask=0o022).returncode == 0
+    mode = lambda p: stat.S_IMODE(p.stat().st_mode)  # noqa: E731
+    assert mode(out) == 0o755 and mode(out / "report_files") == 0o755
+    figures = list((out / "report_files").glob("*.png"))
+    assert figures
+    for f in [*figures, out / "image.npy", out / "run.json", out / "report.html"]:
+        assert mode(f) == 0o644, f
+
+
+@pytest.fixture
+def sweep_results(tmp_path):
+    """The smallest valid sweep results folder `report` accepts."""
+    d = tmp_path / "results"
+    d.mkdir()
+    (d / "sweep.json").write_text(json.dumps({"scene": "s.toml", "points": []}))
+    pd.DataFrame({"point_id": ["p1"], "status": ["error"], "error": ["x"]}).to_csv(d / "points.csv", index=False)
+    pd.DataFrame(columns=["point_id", "kind", "unit", "name", "value"]).to_csv(d / "results.csv", index=False)
+    return d
+
+
+def test_help_of_each_command_shows_its_own_examples():
+    from pipeline_sim.cli import EXAMPLES, build_parser
+
+    parser = build_parser()
+    for command, examples in EXAMPLES.items():
+        res = subprocess.run([sys.executable, "-m", "pipeline_sim", command, "--help"], capture_output=True,
+                             text=True)
+        assert res.returncode == 0
+        for other, lines in EXAMPLES.items():
+            for line in lines:
+                assert (line in res.stdout) == (other == command or line in examples), (command, line)
+        for line in examples:   # every example parses, and the files it names are shipped
+            args = parser.parse_args(shlex.split(line)[1:])
+            for key in ("scene", "sweep"):
+                name = getattr(args, key, None)
+                if name and name.startswith("workloads/"):
+                    assert (Path(__file__).resolve().parent.parent / name).is_file(), line
+
+
+def test_commands_in_shipped_files_are_real_commands(root):
+    """Every command a shipped workload file shows in its comments parses and names files that exist."""
+    from pipeline_sim.cli import build_parser
+
+    parser = build_parser()
+    shown = []
+    for path in sorted((root / "workloads").rglob("*.toml")):
+        for line in path.read_text().splitlines():
+            text = line.lstrip("# ").strip()
+            if line.startswith("#") and ("pipeline-sim " in text or "python -m" in text):
+                shown.append((path.name, text))
+    assert shown
+    for name, text in shown:
+        words = shlex.split(text)
+        assert words[0] == "pipeline-sim", f"{name}: {text}"
+        args = parser.parse_args(words[1:])
+        for key in ("scene", "sweep"):
+            if getattr(args, key, None):
+                assert (root / getattr(args, key)).is_file(), f"{name}: {text}"

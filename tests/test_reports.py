@@ -21,9 +21,10 @@ from matplotlib.figure import Figure
 from pipeline_sim import load_arch, load_scene, render_scene
 from pipeline_sim.accuracy import error_map
 from pipeline_sim.errors import UserError
+from pipeline_sim.output_folder import MARKER
 from reports import figures as F
 from reports.run_report import headline, html_report, markdown_report, summary_text, unit_table
-from reports.sweep_report import _atomic_dir, build_report, load_sweep, representative_point, select_images
+from reports.sweep_report import build_report, load_sweep, representative_point, select_images
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 OPS = ("add", "mul", "madd", "rcp", "compare")
@@ -215,14 +216,40 @@ def test_sweep_report_structure(sweep_dir, tmp_path):
     for link in links:
         assert link.startswith("report_files/")
         assert (out.parent / link).read_bytes().startswith(PNG_SIGNATURE)
-    assert sorted(f.name for f in files.iterdir()) == sorted(Path(link).name for link in links)
+    marker = json.loads((files / MARKER).read_text())
+    assert sorted(f.name for f in files.iterdir() if f.name != MARKER) == sorted(Path(link).name for link in links)
+    assert marker["files"] == sorted(Path(link).name for link in links)
     assert "deadbeef" in mtext
     # no temporary files are left behind
     assert sorted(x.name for x in out.parent.iterdir()) == ["report.html", "report.md", "report_files"]
-    # rewriting the PNG folder replaces it whole
-    _atomic_dir(files, {"x.png": PNG_SIGNATURE})
-    assert [f.name for f in files.iterdir()] == ["x.png"]
+    # writing the report again replaces the figure folder whole: a figure that is gone goes with it
+    (files / "old_figure.png").write_bytes(PNG_SIGNATURE)
+    marker["files"].append("old_figure.png")
+    (files / MARKER).write_text(json.dumps(marker))
+    build_report(sweep_dir, out)
+    assert not (files / "old_figure.png").exists()
     assert sorted(x.name for x in out.parent.iterdir()) == ["report.html", "report.md", "report_files"]
+
+
+def test_sweep_report_never_replaces_what_it_did_not_write(sweep_dir, tmp_path):
+    """An existing report.html, report.md or report_files/ that pipeline-sim did not write is refused."""
+    for name, content in (("r.html", "<html>my notes</html>"), ("r.md", "# my notes\n")):
+        path = tmp_path / name
+        path.write_text(content)
+        with pytest.raises(UserError, match="not written by pipeline-sim"):
+            build_report(sweep_dir, tmp_path / "r.html")
+        assert path.read_text() == content
+        assert not (tmp_path / "r_files").exists()
+        path.unlink()
+    (tmp_path / "r_files").mkdir()
+    (tmp_path / "r_files" / "keep.txt").write_text("mine")
+    with pytest.raises(UserError, match="not written by pipeline-sim"):
+        build_report(sweep_dir, tmp_path / "r.html")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r_files"]
+    # --force writes the report, and leaves the foreign file in the figure folder alone
+    build_report(sweep_dir, tmp_path / "r.html", force=True)
+    assert (tmp_path / "r_files" / "keep.txt").read_text() == "mine"
+    assert len(list((tmp_path / "r_files").glob("*.png"))) >= 5
 
 
 def test_sweep_report_selection_and_representative(sweep_dir):
@@ -401,8 +428,8 @@ def test_sweep_report_reads_the_nested_layout(sweep_dir, tmp_path):
     pid, _ = representative_point(sw, "frame_cycles")
     assert sw.ok.set_index("point_id").loc[pid, "tile_traverser.tile_size"] == 4
     (tmp_path / "r").mkdir()
-    (tmp_path / "r" / "sweep.html").write_text("old")
-    out = build_report(d, tmp_path / "r" / "sweep.html", metric="psnr", cost="ops_total")
+    (tmp_path / "r" / "sweep.html").write_text("old")   # a file the user wrote: replaced only when forced
+    out = build_report(d, tmp_path / "r" / "sweep.html", metric="psnr", cost="ops_total", force=True)
     p = _check_html(out.read_text())
     assert p.imgs[0]["data-figure"] == "accuracy_cost"
     assert (tmp_path / "r" / "sweep.md").is_file() and (tmp_path / "r" / "sweep_files").is_dir()
