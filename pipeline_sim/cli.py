@@ -229,7 +229,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     def scene_args(p, out: bool):
-        p.add_argument("scene", metavar="SCENE.toml", help="scene file (format: README, 'Scene files')")
+        p.add_argument("scene", metavar="SCENE.toml", help="scene file (format: docs/scene-format.md)")
         if out:
             p.add_argument("--out", "-o", required=True, metavar="DIR",
                            help="output folder (replaced whole when the run succeeds)")
@@ -289,7 +289,7 @@ def build_parser() -> argparse.ArgumentParser:
     comp.set_defaults(func=cmd_compare)
 
     sweep = sub.add_parser("sweep", help="run (or resume) a what-if sweep over scene and architecture settings",
-                           description="Run every point of SWEEP.toml (format: README, 'Sweep files') in its own "
+                           description="Run every point of SWEEP.toml (format: docs/sweep-format.md) in its own "
                            "worker process and write DIR/points.csv (one row per point), DIR/results.csv (tidy: one "
                            "row per point and counter or metric) and DIR/points/<id>/ (image, error map, counters, "
                            "timing, trace, resolved config). Running the same command again resumes: finished "
