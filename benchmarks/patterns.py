@@ -1,7 +1,7 @@
 """Sample-pattern quality: discrepancy of each pattern's per-pixel samples.
 
 For every pattern of ``pipeline_sim.sampling`` (the t-ordered (0, m, 3)-net
-of 002 §5, Sobol, stratified, random and Interleave UVT's tuple set), the
+of Munkberg11 §5, Sobol, stratified, random and Interleave UVT's tuple set), the
 centered L2 discrepancy (scipy.stats.qmc.discrepancy, method "CD") of each
 pixel's samples, averaged over pixels, in (x, y), (x, y, t) and all five
 dimensions (lens on the square, mapped to [0, 1)^2), plus the generation

@@ -25,7 +25,7 @@ did (counters) and how long it took (simulated cycles).
 
 EPILOG = """\
 'pipeline-sim COMMAND --help' gives each command's options and examples.
-File formats and outputs: docs/formats.md; the machine it simulates: docs/pipeline.md.
+File formats: docs/README.md; outputs: docs/outputs.md; the machine it simulates: docs/pipeline.md.
 
 example:
   pipeline-sim run workloads/scenes/default.toml --out runs/default
@@ -261,7 +261,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     def scene_args(p, out: bool):
-        p.add_argument("scene", metavar="SCENE.toml", help="scene file (format: README, 'Scene files')")
+        p.add_argument("scene", metavar="SCENE.toml", help="scene file (format: docs/scene-format.md)")
         if out:
             p.add_argument("--out", "-o", required=True, metavar="DIR",
                            help="output folder: new, empty, or one pipeline-sim wrote (replaced whole when the run "
@@ -279,7 +279,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "float RGBA), image.png (8-bit sRGB), counters.csv (one row per unit and counter), "
                          "timing.csv (busy/starved/blocked cycles per unit), queues.csv, run.json (full "
                          "configuration, scene digest, versions, seed, wall time) and report.md/report.html. "
-                         "Formats: docs/formats.md.",
+                         "Formats: docs/outputs.md.",
                          epilog=_epilog("run"), formatter_class=argparse.RawDescriptionHelpFormatter)
     scene_args(run, out=True)
     run.add_argument("--quiet", "-q", action="store_true", help="print nothing on success")
@@ -329,7 +329,7 @@ def build_parser() -> argparse.ArgumentParser:
     comp.set_defaults(func=cmd_compare)
 
     sweep = sub.add_parser("sweep", help="run (or resume) a what-if sweep over scene and architecture settings",
-                           description="Run every point of SWEEP.toml (format: docs/formats.md, 'Sweep files') in its own "
+                           description="Run every point of SWEEP.toml (format: docs/sweep-format.md) in its own "
                            "worker process and write DIR/points.csv (one row per point), DIR/results.csv (tidy: one "
                            "row per point and counter or metric) and DIR/points/<id>/ (image, error map, counters, "
                            "timing, trace, resolved config). Running the same command again resumes: finished "

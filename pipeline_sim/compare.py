@@ -1,9 +1,9 @@
 """Comparing the culling algorithms on one scene, in the papers' own terms.
 
-Renders a scene once per algorithm and tabulates what 001 and 002 compare:
+Renders a scene once per algorithm and tabulates what Wu13 and Munkberg11 compare:
 tiles tested and rejected, samples tested and covered, sample test
-efficiency (STE, 001 §1.1), arithmetic by stage (triangle setup, tile test,
-sample test, interpolation setup; 002 §8 and Fig. 15), depth-buffer bytes,
+efficiency (STE, Wu13 §1.1), arithmetic by stage (triangle setup, tile test,
+sample test, interpolation setup; Munkberg11 §8 and Fig. 15), depth-buffer bytes,
 shader executions, simulated cycles and wall time. Every culling algorithm
 is conservative, so the covered samples, and therefore the images, must be
 identical: the comparison checks it. Interleave UVT samples a different,
@@ -50,35 +50,36 @@ ALGORITHMS: dict[str, list[str]] = {
 # run on the discrete (u, v, t) tuple set of Interleave UVT, not the continuous samples
 DISCRETE = ("interleave_uvt", "bbox/interleave")
 DESCRIPTIONS = {
-    "bbox": "every sample in the moving, defocused bounds (001/002 baseline)",
-    "box": "moving box vs tile frustum planes (002 §4.1)",
-    "box+edge": "moving box + linearized moving edges (002 §4.1-4.2)",
-    "box+edge/tile": "as box+edge, with the edge slope bound gamma recomputed per tile (002 §4.2)",
+    "bbox": "every sample in the moving, defocused bounds (Wu13/Munkberg11 baseline)",
+    "box": "moving box vs tile frustum planes (Munkberg11 §4.1)",
+    "box+edge": "moving box + linearized moving edges (Munkberg11 §4.1-4.2)",
+    "box+edge/tile": "as box+edge, with the edge slope bound gamma recomputed per tile (Munkberg11 §4.2)",
     "box+lens": "moving box + lens intervals u^, v^",
     "hierarchical": "moving box + linearized edges + lens intervals (default)",
-    "hull": "convex hull of the six projected vertices, motion only (McGuire et al. 2010; 001 §3.2)",
-    "dual_space": "lens bounds, then time bounds over the lens range (Laine et al. 2011; 001 §2)",
-    "two_stage": "lens bounds, then per-tile time bounds linear in u and v (001 §3.3-3.4)",
-    "interleave_uvt": "a fixed set of (u, v, t) tuples, one 2D raster each (Fatahalian et al. 2009)",
+    "hull": "convex hull of the six projected vertices, motion only (McGuire10; Wu13 §3.2)",
+    "dual_space": "lens bounds, then time bounds over the lens range (Laine11; Wu13 §2)",
+    "two_stage": "lens bounds, then per-tile time bounds linear in u and v (Wu13 §3.3-3.4)",
+    "interleave_uvt": "a fixed set of (u, v, t) tuples, one 2D raster each (Fatahalian09)",
     "bbox/interleave": "BBOX on Interleave UVT's discrete sample set (its image reference)",
-    "box+quadratic": "moving box + the quadratic edge equations solved per tile (002 §4.2; 004 §4.1)",
-    "exact/pixel": "hierarchical with exact quadratic time intervals per pixel (004 §4.1; 1x1 tiles)",
+    "box+quadratic": "moving box + the quadratic edge equations solved per tile (Munkberg11 §4.2; Gribel10 §4.1)",
+    "exact/pixel": "hierarchical with exact quadratic time intervals per pixel (Gribel10 §4.1; 1x1 tiles)",
 }
 # the papers' comparisons: (name, claim, the scene's blur (motion, lens) it is
 # about, algorithms needed, check(table) -> (measured text, met))
 PAPER_CHECKS = (
-    ("hierarchical_5x_bbox", "hierarchical tests reach >= 5x the STE of BBOX on motion blur (002 §7)",
+    ("hierarchical_5x_bbox", "hierarchical tests reach >= 5x the STE of BBOX on motion blur (Munkberg11 §7)",
      (True, False), ("bbox", "hierarchical"),
      lambda t: _ratio_check(t.loc["hierarchical", "ste"], t.loc["bbox", "ste"], 5.0)),
     ("two_stage_beats_dual", "two-stage culling beats dual-space bounds in STE with both blurs "
-     "(001 Table 4.1: 19% vs 5%)", (True, True), ("dual_space", "two_stage"),
+     "(Wu13 Table 4.1: 19% vs 5%)", (True, True), ("dual_space", "two_stage"),
      lambda t: (f"{100 * t.loc['two_stage', 'ste']:.2f}% vs {100 * t.loc['dual_space', 'ste']:.2f}%",
                 bool(t.loc["two_stage", "ste"] > t.loc["dual_space", "ste"]))),
     ("linearized_vs_quadratic", "the linearized edge test tests <= 10% more samples than the quadratic one "
-     "and spends less arithmetic (002: +8% tests, -13% arithmetic)", (True, False), ("box+edge", "box+quadratic"),
+     "and spends less arithmetic (Munkberg11 §7: +8% tests, -13% arithmetic)", (True, False),
+     ("box+edge", "box+quadratic"),
      lambda t: _linear_vs_quadratic(t)),
 )
-STAGES = {  # 002 Fig. 15's stages and the units whose arithmetic they are
+STAGES = {  # Munkberg11 Fig. 15's stages and the units whose arithmetic they are
     "triangle_setup": ("triangle_setup",),
     "tile_test": ("tile_traverser", "tile_test"),
     "sample_test": ("sample_tester",),
@@ -106,7 +107,7 @@ def _ratio_check(a: float, b: float, target: float) -> tuple[str, bool]:
 def _linear_vs_quadratic(t: pd.DataFrame) -> tuple[str, bool]:
     lin, quad = t.loc["box+edge"], t.loc["box+quadratic"]
     more_tests = lin.samples_tested / max(quad.samples_tested, 1) - 1.0
-    # 002 compares the total arithmetic of the four stages of its Fig. 15
+    # Munkberg11 compares the total arithmetic of the four stages of its Fig. 15
     less_ops = 1.0 - lin.ops_total / max(quad.ops_total, 1)
     return (f"{100 * more_tests:+.1f}% tests, {-100 * less_ops:+.1f}% total arithmetic",
             bool(more_tests <= 0.10 and less_ops > 0))

@@ -24,13 +24,13 @@ DEFAULT_ARCH_PATH = Path(__file__).with_name("data") / "default_arch.toml"
 DEPTH_FUNCS = ("less", "lequal", "greater", "gequal", "equal", "always", "never")
 BLEND_MODES = ("replace", "add", "min", "max")
 # bbox: every tile of the moving, defocused bounds and every sample of the
-# triangle's time span (the baseline of 001 and 002); hierarchical: the tile
-# tests of 002 §4 (moving box, linearized or quadratic edges) and lens bounds;
-# hull: the convex hull of the six projected vertices (McGuire et al. 2010,
-# 001 §3.2); dual_space: lens bounds, then time bounds over the whole lens
-# range (Laine et al. 2011, 001 §2); two_stage: lens bounds, then time bounds
-# linear in the lens coordinate (001 §3.3-3.4); interleave_uvt: one 2D
-# raster per (u, v, t) tuple of a fixed set (Fatahalian et al. 2009)
+# triangle's time span (the baseline of Wu13 and Munkberg11); hierarchical: the tile
+# tests of Munkberg11 §4 (moving box, linearized or quadratic edges) and lens bounds;
+# hull: the convex hull of the six projected vertices (McGuire10,
+# Wu13 §3.2); dual_space: lens bounds, then time bounds over the whole lens
+# range (Laine11, Wu13 §2); two_stage: lens bounds, then time bounds
+# linear in the lens coordinate (Wu13 §3.3-3.4); interleave_uvt: one 2D
+# raster per (u, v, t) tuple of a fixed set (Fatahalian09)
 TILE_TEST_ALGORITHMS = ("hierarchical", "bbox", "hull", "dual_space", "two_stage", "interleave_uvt")
 EDGE_SOLVERS = ("linearized", "quadratic")
 # an architecture names a generated pattern; a sample table comes with a pass
@@ -112,7 +112,7 @@ class TileTestConfig(UnitTiming):
     edge_solver: str = "linearized"
     gamma: str = "triangle"
     lens_bounds: bool = True
-    # axis-aligned user clip planes on t, u and v (000 §2): samples outside are never covered
+    # axis-aligned user clip planes on t, u and v (Nilsson12 §2): samples outside are never covered
     clip_t_lo: float = 0.0
     clip_t_hi: float = 1.0
     clip_u_lo: float = -1.0
@@ -225,7 +225,7 @@ class ArchConfig:
         if self.tile_test.algorithm == "interleave_uvt" and self.pipeline.sample_pattern != "interleave":
             raise UserError(f"{where}: tile_test.algorithm = 'interleave_uvt' needs pipeline.sample_pattern = "
                             f"'interleave' (got '{self.pipeline.sample_pattern}')")
-        # conservative mode rasterizes 1x1 tiles (000 §2); the renderer applies
+        # conservative mode rasterizes 1x1 tiles (Nilsson12 §2); the renderer applies
         # that without rewriting tile_size, so leaving the mode restores it
         return self
 

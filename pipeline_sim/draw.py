@@ -2,10 +2,10 @@
 
 A ``Draw`` is the input of triangle setup, kept as structure of arrays. Each
 vertex is given in homogeneous clip space at t=0 (``q``) and t=1 (``r``);
-between them it moves linearly (PIPELINE.md §1). With a thin lens the vertex
+between them it moves linearly (docs/pipeline.md §1). With a thin lens the vertex
 seen from lens position (u, v) in the unit disk moves by
 (u * lens_x, v * lens_y) in clip x and y, where the circle of confusion is
-linear in clip w (001 §3.1): for a lens of radius R focused at distance F,
+linear in clip w (Wu13 §3.1): for a lens of radius R focused at distance F,
 lens_x = P[0,0] * R * (w / F - 1) and lens_y = P[1,1] * R * (w / F - 1)
 (shifting the pinhole by (uR, vR) and shearing the frustum so the focus plane
 stays fixed).
@@ -32,7 +32,7 @@ class Draw:
     t=0 and t=1; ``color`` (N,3,3) float32; ``material`` (N,) int32;
     ``object_id`` (N,) int32. ``depth_w`` = (c1, c0) when every vertex's
     depth is z/w = c1 + c0 / w (a perspective projection, c0 < 0): it lets
-    the tile test turn bounds on w into bounds on depth (000 Appendix A).
+    the tile test turn bounds on w into bounds on depth (Nilsson12 App. A).
     """
 
     q: np.ndarray

@@ -99,7 +99,7 @@ class PassResult:
 
     @property
     def ste(self) -> float:
-        """Sample test efficiency: covered / tested samples (001 §1.1)."""
+        """Sample test efficiency: covered / tested samples (Wu13 §1.1)."""
         tested = self.counter("sample_tester", "samples_tested")
         return self.counter("sample_tester", "samples_covered") / tested if tested else float("nan")
 
@@ -139,8 +139,8 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
                         f"pattern, not '{pattern}'")
 
     setup = TriangleSetup(arch.triangle_setup, draw, ts, hull=algorithm == "hull")
-    # the hierarchical tests of 002 start at coarse tiles; the others cover
-    # their bounding geometry flat, as 001 does
+    # the hierarchical tests of Munkberg11 start at coarse tiles; the others cover
+    # their bounding geometry flat, as Wu13 does
     traverser = TileTraverser(arch.tile_traverser, setup.table, ts, draw.width, draw.height,
                               coarse_test=algorithm == "hierarchical")
     tile_test = TileTest(arch.tile_test, setup.table, ts, draw.width, draw.height, draw.depth_w,

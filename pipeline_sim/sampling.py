@@ -79,7 +79,7 @@ def _check_m(m: int, limit: int = 31) -> None:
 
 
 def grunschloss_keller_matrices(m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Original Grünschloß-Keller matrices ``(C1, C2, C3)`` (002 eq. 13-14), uint8 m x m."""
+    """Original Grünschloß-Keller matrices ``(C1, C2, C3)`` (Munkberg11 eq. 13-14), uint8 m x m."""
     _check_m(m)
     c1 = np.fliplr(np.eye(m, dtype=np.uint8)).copy()
     c2 = np.triu(np.ones((m, m), dtype=np.uint8))
@@ -90,7 +90,7 @@ def grunschloss_keller_matrices(m: int) -> tuple[np.ndarray, np.ndarray, np.ndar
 
 
 def generator_matrices(m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """t-ordered matrices ``(C1', C2', C_t)`` of 002 eq. 12 / 17 / 19, uint8 m x m.
+    """t-ordered matrices ``(C1', C2', C_t)`` of Munkberg11 eq. 12 / 17 / 19, uint8 m x m.
 
     ``C1'[k, l] = binom(m+1-l, m+1-k) mod 2``, ``C2'[k, l] = binom(m-l, k-1) mod 2``
     (1-based) and the time matrix is the exchange matrix, so ``t_j = j / 2^m``.
@@ -697,7 +697,7 @@ def make_samples(
 
 
 # ---------------------------------------------------------------------------
-# Interleave UVT (Fatahalian et al. 2009, as 001 §2 and 002 §2 describe it)
+# Interleave UVT (Fatahalian09, as Wu13 §2 and Munkberg11 §2 describe it)
 # ---------------------------------------------------------------------------
 
 

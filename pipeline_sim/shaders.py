@@ -14,7 +14,7 @@ A shader shades a batch of shading points at once::
 
 Workloads bring their own shaders in the same form. In standard mode the
 inputs describe the surface point (world position, normal, color at the
-shading time) and the sample; in conservative mode (000 §2) the shader runs
+shading time) and the sample; in conservative mode (Nilsson12 §2) the shader runs
 once per (triangle, pixel) and also receives the tile intervals
 (u^, v^, t^, z^).
 """
@@ -100,7 +100,7 @@ def depth_shader(inputs, params, texture, out):
 @nb.njit(cache=True)
 def interval_shader(inputs, params, texture, out):
     """Conservative mode: writes (t_lo, z_lo, t_hi, z_hi) of the pixel's tile test
-    (the tz-box of 000 §3 continuous collision detection)."""
+    (the tz-box of Nilsson12 §3 continuous collision detection)."""
     for i in range(inputs.shape[1]):
         out[i, 0] = inputs[IN_T_LO, i]
         out[i, 1] = inputs[IN_Z_LO, i]

@@ -152,7 +152,7 @@ def test_same_inputs_same_image_and_counters():
 
 
 def test_conservative_mode_bounds_every_covered_pixel_and_time():
-    """Conservative mode (000 §2): 1x1 tiles, no sample tester, one shader per
+    """Conservative mode (Nilsson12 §2): 1x1 tiles, no sample tester, one shader per
     (triangle, pixel) with (t^, z^). Every (pixel, t) a dense brute force finds
     covered must be output with t inside t^."""
     w, h = 24, 16
@@ -273,7 +273,7 @@ def _clip_probe_shader(inputs, params, texture, out):
 
 
 def test_user_clip_planes_limit_the_covered_samples():
-    """000 §2: clip planes on t and u. A screen-filling quad, moving and defocused:
+    """Nilsson12 §2: clip planes on t and u. A screen-filling quad, moving and defocused:
     every covered sample lies inside the clip box and about half of t is clipped."""
     quad = np.array([[[-2, -2, 0, 1], [2, -2, 0, 1], [2, 2, 0, 1]], [[-2, -2, 0, 1], [2, 2, 0, 1], [-2, 2, 0, 1]]],
                     dtype=np.float64)

@@ -1,4 +1,4 @@
-"""Tests for pipeline_sim.sampling (paper 002 §5 / App. A sample patterns).
+"""Tests for pipeline_sim.sampling (Munkberg11 §5 / App. A sample patterns).
 
 Each property is checked against an independent construction: nets by brute
 force over all elementary boxes, matrices by F2 products of the original

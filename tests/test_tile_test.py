@@ -1,6 +1,6 @@
 """Conservativeness of triangle setup, the traverser and the tile test.
 
-Property (PIPELINE §2.3): the tile test never rejects a (tile, sample) pair
+Property (docs/pipeline.md §2.3): the tile test never rejects a (tile, sample) pair
 that the exact sample test accepts, and the intervals (u^, v^, t^, z^) it
 outputs contain that sample's (u, v, t) and depth. Checked with hypothesis on
 random moving, defocused triangles, including ones whose vertex paths cross
@@ -108,7 +108,7 @@ def test_every_algorithm_depth_bounds_conservative(tri, seed, algorithm):
 
 @given(moving_triangle(perspective=True), st.integers(0, 2**31), st.sampled_from([1, 4, 16]))
 def test_moving_plane_depth_bounds_conservative(tri, seed, tile_size):
-    """z^ with the moving plane equations of 000 Appendix A (perspective depth)."""
+    """z^ with the moving plane equations of Nilsson12 App. A (perspective depth)."""
     assert_conservative(*tri, seed, tile_size=tile_size, depth_w=PERSPECTIVE)
 
 

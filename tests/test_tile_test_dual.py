@@ -1,7 +1,7 @@
 """Conservativeness and tightness of the dual-space and two-stage time bounds.
 
-``units.tile_test_dual``: Laine et al.'s dual-space time interval (001 §2)
-and 001 §3.4's stage-2 lines t >= lo_c + lo_s u, t <= hi_c + hi_s u. Both are
+``units.tile_test_dual``: Laine11's dual-space time interval (Wu13 §2)
+and Wu13 §3.4's stage-2 lines t >= lo_c + lo_s u, t <= hi_c + hi_s u. Both are
 checked against brute force: many random 5D samples (x, y in the tile, u, v
 in the lens range, t in [ta, tb]) decided by the pipeline's exact inside test
 on the float32 vertices; every covered sample must lie within every bound.

@@ -1,4 +1,4 @@
-"""Convex-hull bound of 001 §3.2 (McGuire et al. 2010) against independent references.
+"""Convex-hull bound of Wu13 §3.2 (McGuire10) against independent references.
 
 * the hull of the six projected vertices against scipy.spatial.ConvexHull;
 * conservativeness: brute force over (t, point of the tile) -- a float64 edge

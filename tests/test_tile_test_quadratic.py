@@ -1,4 +1,4 @@
-"""Quadratic moving-edge tile test (002 §4.2 alternative, 004 §4.1) against independent references.
+"""Quadratic moving-edge tile test (Munkberg11 §4.2 alternative, Gribel10 §4.1) against independent references.
 
 * conservativeness on random quadratic edges, with adversarial ones (f == 0,
   f tiny, double roots, axis-parallel components, huge translations, huge

@@ -101,7 +101,7 @@ def test_temporal_frustum_span_brackets_the_visible_times():
 
 @given(moving_triangle(lens=False, allow_w_cross=False), st.integers(0, 2**31))
 def test_linearized_edges_bound_the_edge_functions(tri, seed):
-    """002 eq. 4-7: h . s + Gamma t bounds the oriented edge function from above
+    """Munkberg11 eq. 4-7: h . s + Gamma t bounds the oriented edge function from above
     for every s in the tile-aligned bounds and t in [0, 1] (checked in float64)."""
     q, r, lx, ly = tri
     setup, alive, _ = run_setup(q, r, lx, ly)

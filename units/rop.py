@@ -1,6 +1,6 @@
 """ROP: depth test, blending, float multisample render targets, resolve.
 
-Implements PIPELINE.md §2.7. Samples arrive in primitive order; each is
+Implements docs/pipeline.md §2.7. Samples arrive in primitive order; each is
 depth-tested against its multisample depth buffer entry with the configured
 function, and on a pass its color is blended (replace, add, min, max) into a
 float RGBA multisample color buffer. Resolve is a box filter over each
@@ -31,7 +31,7 @@ COLOR_BYTES = 16
 @nb.njit(cache=True)
 def rop_kernel(pix, sidx, z, color, noread, spp, pix0, func, depth_write, blend, depth_buf, color_buf, prior, ops,
                events, traffic):
-    """Depth test and blend each sample in order (PIPELINE §2.7); the buffers start at pixel ``pix0``.
+    """Depth test and blend each sample in order (docs/pipeline.md §2.7); the buffers start at pixel ``pix0``.
 
     ``prior[i]`` gets the depth record ``i`` replaced, NaN where it wrote no depth."""
     skipped = 0
@@ -87,7 +87,7 @@ def rop_kernel(pix, sidx, z, color, noread, spp, pix0, func, depth_write, blend,
 
 @nb.njit(cache=True)
 def resolve_kernel(color_buf, spp, out):
-    """Box filter (PIPELINE §2.7): each pixel's mean over its ``spp`` samples, summed in float64."""
+    """Box filter (docs/pipeline.md §2.7): each pixel's mean over its ``spp`` samples, summed in float64."""
     for p in range(out.shape[0]):
         base = p * spp
         for c in range(4):

@@ -1,20 +1,20 @@
 """Sample tester: the exact 5D inside test for the samples of each tile.
 
-Implements PIPELINE.md §2.5. For each pixel of a surviving tile, the samples
+Implements docs/pipeline.md §2.5. For each pixel of a surviving tile, the samples
 whose t lies in t^ form a contiguous range of the pixel's t-ordered samples
-(a binary-search range lookup, 002 §5); those whose (u, v) also lie in
+(a binary-search range lookup, Munkberg11 §5); those whose (u, v) also lie in
 (u^, v^) get the exact test at their own (x, y, u, v, t):
 
 * vertices lerped to t and shifted by the lens: p_k = (X + u LX, Y + v LY, W)
-  (001 §3.1);
-* 2DH edge functions e_k = (p_j x p_i) . (x, y, 1) (Olano and Greer; 004 eq. 3
+  (Wu13 §3.1);
+* 2DH edge functions e_k = (p_j x p_i) . (x, y, 1) (Olano and Greer; Gribel10 eq. 3
   at a fixed t) and the orientation D = p_0 . (p_2 x p_1);
 * inside when every e_k has the sign of D; a zero e_k counts only on a
   top-left edge (normal (a, b) with a > 0, or a == 0 and b > 0, after
   orienting by D), so samples on a shared edge or vertex are covered exactly
-  once (003 §3.4);
+  once (Davidovic12 §3.4);
 * perspective-correct barycentrics b_k = e_k / sum(e) and depth
-  z/w = sum(e_k z_k) / D (004 eq. 10-13), clipped to [-1, 1] (near and far).
+  z/w = sum(e_k z_k) / D (Gribel10 eq. 10-13), clipped to [-1, 1] (near and far).
 
 Arithmetic is float32, as in hardware; the computation is bit-for-bit the
 same for the two triangles that share an edge, which makes it watertight.
@@ -54,7 +54,7 @@ def _top_left(a, b):
 @nb.njit(cache=True)
 def _edges(X0, Y0, W0, X1, Y1, W1, X2, Y2, W2):
     """Edge k opposite vertex k: n_k = p_j x p_i, (i, j) = (k+1, k+2) mod 3, and
-    the orientation D = p0 . (p2 x p1) (004 eq. 3 at fixed t; Olano and Greer)."""
+    the orientation D = p0 . (p2 x p1) (Gribel10 eq. 3 at fixed t; Olano and Greer)."""
     a0 = Y2 * W1 - W2 * Y1
     b0 = W2 * X1 - X2 * W1
     c0 = X2 * Y1 - Y2 * X1
@@ -80,7 +80,7 @@ def _decide(a0, b0, c0, a1, b1, c1, a2, b2, c2, D, X0, Y0, W0, Z0, X1, Y1, W1, Z
     bound ``eps`` of an edge is re-evaluated in float64 from the same float32
     vertices (products of two float32 are exact), so the decision matches
     exact arithmetic: shared edges (exactly negated functions) and shared
-    vertices are covered once. Ties follow the top-left rule (003 §3.4).
+    vertices are covered once. Ties follow the top-left rule (Davidovic12 §3.4).
     """
     e0 = np.float64(a0 * x + b0 * y + c0)
     e1 = np.float64(a1 * x + b1 * y + c1)
@@ -122,7 +122,7 @@ def _decide(a0, b0, c0, a1, b1, c1, a2, b2, c2, D, X0, Y0, W0, Z0, X1, Y1, W1, Z
 
 @nb.njit(cache=True)
 def _at(p0, d, l0, dl, t, u):
-    """A vertex coordinate at time t and lens coordinate u (001 §3.1)."""
+    """A vertex coordinate at time t and lens coordinate u (Wu13 §3.1)."""
     return p0 + t * d + u * (l0 + t * dl)
 
 
@@ -268,7 +268,7 @@ def _intervals(n, k0, st, su, sv, msk, ta, tb, ua, ub, va, vb):
 @nb.njit(cache=True, inline="always")
 def _intervals_extra(n, k0, st, su, sv, stup, tup_mask, msk, ta, tb, ua, ub, va, vb, ln, mk):
     """``_intervals`` with two-stage culling's time lines ``ln`` (t >= c + s u,
-    t <= c + s u, then the same in v; 001 §3.4) and Interleave UVT's tuple
+    t <= c + s u, then the same in v; Wu13 §3.4) and Interleave UVT's tuple
     mask ``mk`` (tuple indices ``stup[k & tup_mask]``)."""
     lc, ls, hc, hs, mc, ms, kc, ks = ln[0], ln[1], ln[2], ln[3], ln[4], ln[5], ln[6], ln[7]
     n_t = np.int32(0)
@@ -646,7 +646,7 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
                        uv_range, xy_max, row0,
                        p0, dp, l0, dl, edge_eps, backface_culling, specialize,
                        out_tri, out_pix, out_sidx, out_z, out_b0, out_b1, out_b2, out_noread, ops, events):
-    """Interval lookup on the tile's samples and exact inside tests (002 §5; 004 eq. 3, 10-13).
+    """Interval lookup on the tile's samples and exact inside tests (Munkberg11 §5; Gribel10 eq. 3, 10-13).
 
     The samples (x, y, u, v, t, tuple index) come in two tile-major orders
     (``_tile_major``), one after the other in each array: pixel-major, then

@@ -1,6 +1,6 @@
 """Shading: a memoization shading cache, or one shader execution per sample.
 
-Implements PIPELINE.md §2.6 (000 §2 and §8; Ragan-Kelley et al. 2011).
+Implements docs/pipeline.md §2.6 (Nilsson12 §2 and §8; Ragan-Kelley et al. 2011).
 
 Cache mode (decoupled sampling): a covered sample takes its barycentric
 position on the triangle, projects that surface point with the reference
@@ -15,7 +15,7 @@ Per-sample mode: every covered sample is shaded at its own (t, u, v) and
 barycentrics, a 1:1 mapping (caustics, sampling).
 
 Conservative mode: the shader runs once per (triangle, pixel) record with
-the tile intervals (u^, v^, t^, z^) as inputs (000 §2).
+the tile intervals (u^, v^, t^, z^) as inputs (Nilsson12 §2).
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ HASH_MUL = np.uint64(0x9E3779B97F4A7C15)
 @nb.njit(cache=True)
 def cache_kernel(tri, b0, b1, b2, ref, rate, grid_w, grid_h, tags, stamps, entry_req, entry_color,
                  clock, replacement, out_color, sample_req, req_entry, req_tri, req_l, ops, events):
-    """Shading-cache lookups in sample order (000 §2, §8; Ragan-Kelley et al. 2011).
+    """Shading-cache lookups in sample order (Nilsson12 §2, §8; Ragan-Kelley et al. 2011).
 
     Returns (number of shading requests, new clock). Hits on entries filled
     in earlier batches copy the stored color into ``out_color``; other
@@ -213,7 +213,7 @@ def deliver_colors(sample_req, shaded, color):
 @nb.njit(cache=True)
 def interpolate_kernel(req_tri, req_l, req_t, req_u, req_v, req_x, req_y, req_depth,
                        pos, nrm, color, material, object_id, inputs, ops):
-    """Perspective-correct attribute interpolation for shading requests (002 §8 'interpolation setup')."""
+    """Perspective-correct attribute interpolation for shading requests (Munkberg11 §8 'interpolation setup')."""
     for i in range(req_tri.shape[0]):
         tr = req_tri[i]
         t = req_t[i]

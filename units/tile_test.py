@@ -1,27 +1,27 @@
 """Tile test: a (triangle, tile) pair to conservative intervals (u^, v^, t^, z^).
 
-Implements PIPELINE.md §2.3:
+Implements docs/pipeline.md §2.3:
 
 * t^ from the moving axis-aligned box in 2DH against the four tile frustum
-  planes (002 §4.1, eq. 1-2); the box includes the lens shift at u, v = +-1,
+  planes (Munkberg11 §4.1, eq. 1-2); the box includes the lens shift at u, v = +-1,
   so it bounds the triangle at every lens position;
-* intersected with the linearized moving-edge test (002 §4.2, eq. 8-9) for
+* intersected with the linearized moving-edge test (Munkberg11 §4.2, eq. 8-9) for
   motion-only triangles of constant facing;
 * lens intervals u^, v^: for each vertex at the two ends of t^, the screen
-  position x = (X + u LX) / W is a line in u (the dual-space view of Laine et
-  al. 2011 that 001 §2 describes); a sample at lens u can be covered only if
+  position x = (X + u LX) / W is a line in u (the dual-space view of
+  Laine11 that Wu13 §2 describes); a sample at lens u can be covered only if
   some vertex lies right of the tile's left side and some vertex left of its
   right side, which bounds u to an interval;
-* optional axis-aligned user clip planes on t, u and v (000 §2) bound every
+* optional axis-aligned user clip planes on t, u and v (Nilsson12 §2) bound every
   interval by min/max, so samples outside them are never covered;
 * z^ from the vertex depths at the ends of t^ (the near and far faces of the
-  moving box, 000 Appendix A first test): the depth of any point of the
+  moving box, Nilsson12 App. A first test): the depth of any point of the
   triangle is a convex combination of vertex depths while w > 0.
 
 Every bound is widened by a small margin so floating-point rounding can only
 make it looser, never tighter. With ``algorithm = "bbox"`` no tile is
-rejected and t^ is the triangle's whole time span: the BBOX baseline of 001
-and 002, against which the sample test efficiency of the tests is measured.
+rejected and t^ is the triangle's whole time span: the BBOX baseline of Wu13
+and Munkberg11, against which the sample test efficiency of the tests is measured.
 """
 
 from __future__ import annotations
@@ -92,7 +92,7 @@ def _outside_distance(plane, x0, x1, y0, y1, xmn, xmx, ymn, ymx, wmn, wmx):
 
 @nb.njit(cache=True)
 def box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ta, tb, ops):
-    """Moving 2DH box of the triangle against the tile frustum planes (002 eq. 1-2).
+    """Moving 2DH box of the triangle against the tile frustum planes (Munkberg11 eq. 1-2).
 
     The box is taken at the ends of [ta, tb] and moves linearly between them:
     the vertices (and the lens shifts) are linear in t, so at any t in
@@ -135,10 +135,10 @@ def box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ta, tb, ops):
 @nb.njit(cache=True)
 def _edge_time_interval(edge_h, edge_gamma, edge_g, edge_fg, edge_abs, gamma_per_tile, tri, x0, x1, y0, y1, lo, hi,
                         ops):
-    """Linearized moving-edge test (002 eq. 8-9); narrows [lo, hi].
+    """Linearized moving-edge test (Munkberg11 eq. 8-9); narrows [lo, hi].
 
     Gamma is the triangle's (eq. 7 over its bounds) or, with
-    ``gamma_per_tile``, recomputed over this tile's extents as 002 suggests,
+    ``gamma_per_tile``, recomputed over this tile's extents as Munkberg11 suggests,
     which is tighter: max over the tile of g . s and (f + g) . s.
     """
     for k in range(3):
@@ -244,7 +244,7 @@ def _lens_interval(p0, dp, l0, dl, tri, axis, a0, a1, ta, tb, ops):
 
 @nb.njit(cache=True)
 def plane_w_bounds(plane_n, plane_d, tri, x0, x1, y0, y1, ta, tb, ops):
-    """Bounds on w over the tile and [ta, tb] from the moving planes (000 App. A).
+    """Bounds on w over the tile and [ta, tb] from the moving planes (Nilsson12 App. A).
 
     The triangle stays on one side of the plane n . P + d0 + v t = 0 for all
     t. On the ray P = w (x, y, 1) that gives w <= -D(t) / N or w >= -D(t) / N
@@ -316,13 +316,13 @@ def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, algorith
                      out_keep, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, lines, mask, ops, events):
     """Test each (triangle, tile) record; fill its intervals and ``out_keep``.
 
-    ``algorithm`` (ALG_*): hierarchical, 002 §4.1-4.2 (t^ from the moving box
+    ``algorithm`` (ALG_*): hierarchical, Munkberg11 §4.1-4.2 (t^ from the moving box
     and the linearized or, with ``quadratic``, the exact quadratic edges) and
-    lens bounds (u^, v^); BBOX (no rejection); the convex hull of McGuire et
-    al. 2010 (001 §3.2); dual-space bounds (Laine et al. 2011, 001 §2);
-    two-stage culling (001 §3.3-3.4), which also writes per-record time
+    lens bounds (u^, v^); BBOX (no rejection); the convex hull of McGuire10
+    (Wu13 §3.2); dual-space bounds (Laine11, Wu13 §2);
+    two-stage culling (Wu13 §3.3-3.4), which also writes per-record time
     ``lines`` linear in u and v; Interleave UVT, which writes a tuple
-    ``mask``. z^ from 000 App. A for all of them; clip planes (000 §2).
+    ``mask``. z^ from Nilsson12 App. A for all of them; clip planes (Nilsson12 §2).
     """
     for i in range(tri_ids.shape[0]):
         tri = tri_ids[i]
@@ -331,7 +331,7 @@ def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, algorith
         x1 = min((tile_x[i] + 1) * tile_size, width) + MARGIN_PX
         y0 = tile_y[i] * tile_size - MARGIN_PX
         y1 = min((tile_y[i] + 1) * tile_size, height) + MARGIN_PX
-        ta = max(t_span[tri, 0], clips[0])  # user clip planes bound every interval (000 §2)
+        ta = max(t_span[tri, 0], clips[0])  # user clip planes bound every interval (Nilsson12 §2)
         tb = min(t_span[tri, 1], clips[1])
         out_keep[i] = False
         wpos = (fl & FLAG_WPOS) != 0
@@ -353,7 +353,7 @@ def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, algorith
                 if lo > hi:
                     events[EV_REJ_EDGE] += 1
                     continue
-                # the box taken over the narrowed [lo, hi] is tighter (002 §4.1 applied again)
+                # the box taken over the narrowed [lo, hi] is tighter (Munkberg11 §4.1 applied again)
                 if lo > ta or hi < tb:
                     lo, hi = box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, lo, hi, ops)
                     if lo > hi:
@@ -378,7 +378,7 @@ def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, algorith
         # a triangle without lens shift is seen alike from every lens position
         lens_live = has_lens and wpos and (
             (algorithm == ALG_HIERARCHICAL and lens_bounds) or algorithm == ALG_DUAL or algorithm == ALG_TWO_STAGE)
-        if lens_live:  # 001 §3.3 (stage 1): lens bounds from the vertices at the ends of t^
+        if lens_live:  # Wu13 §3.3 (stage 1): lens bounds from the vertices at the ends of t^
             a, b = _lens_interval(p0, dp, l0, dl, tri, 0, x0, x1, lo, hi, ops)
             ulo, uhi = max(ulo, a), min(uhi, b)
             if ulo > uhi:
@@ -395,7 +395,7 @@ def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, algorith
                 events[EV_REJ_DUAL] += 1
                 continue
         if algorithm == ALG_TWO_STAGE:
-            if wpos:  # 001 §3.4 (stage 2): time bounds linear in u (x axis) and v (y axis)
+            if wpos:  # Wu13 §3.4 (stage 2): time bounds linear in u (x axis) and v (y axis)
                 l_c, l_s, h_c, h_s = two_stage_lines(p0, dp, l0, dl, tri, 0, x0, x1, ulo, uhi, lo, hi, ops)
                 m_c, m_s, k_c, k_s = two_stage_lines(p0, dp, l0, dl, tri, 1, y0, y1, vlo, vhi, lo, hi, ops)
             else:

@@ -1,10 +1,10 @@
 """Per-tile (or per-pixel) time bounds in the dual space of the lens and time.
 
-Two culling bounds of 001 for a tile (or pixel) column range [a0, a1]:
+Two culling bounds of Wu13 for a tile (or pixel) column range [a0, a1]:
 
-* ``dual_time_interval``: the dual-space time bounds of Laine et al. 2011
-  as 001 §2 describes them (001 §3.3-3.4 compare against them);
-* ``two_stage_lines``: 001 §3.4 "Culling Stage 2" (eq. 1 and the rational
+* ``dual_time_interval``: the dual-space time bounds of Laine11
+  as Wu13 §2 describes them (Wu13 §3.3-3.4 compare against them);
+* ``two_stage_lines``: Wu13 §3.4 "Culling Stage 2" (eq. 1 and the rational
   function of the lens coordinate that follows it), two lines in (t, u).
 
 Both rest on one fact. The triangle is the convex hull of its vertices, so a
@@ -16,7 +16,7 @@ x >= a0 is
     X_k = X0 + t dX + u (L0 + t dL),  W_k = W0 + t dW,
 
 which is bilinear in (t, u): linear in t at fixed u and linear in u at fixed
-t (Laine et al.'s dual space, 001 §2). "Some vertex <= a1" is the mirror
+t (Laine11's dual space, Wu13 §2). "Some vertex <= a1" is the mirror
 condition a1 W_k - X_k >= 0. The same holds along y with the lens
 coordinate v.
 
@@ -74,7 +74,7 @@ def _condition(p0, dp, l0, dl, tri, k, axis, cond, a, umax, ta, tb):
 
 @nb.njit(cache=True)
 def dual_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ulo, uhi, vlo, vhi, ta, tb, ops):
-    """Dual-space time bounds of Laine et al. 2011 (001 §2) for a tile.
+    """Dual-space time bounds of Laine11 (Wu13 §2) for a tile.
 
     Returns (lo, hi) within [ta, tb]: the times at which the triangle, seen
     from some lens position in [ulo, uhi] x [vlo, vhi], can have a sample in
@@ -86,7 +86,7 @@ def dual_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ulo, uhi, vlo, vhi, 
     the union of those half-lines; the result intersects their hulls. The
     lens and time ranges are treated independently (the coupling between them
     is lost), which is what makes this loose under simultaneous motion and
-    defocus (001 §3.4, Table 4.1).
+    defocus (Wu13 §3.4, Table 4.1).
     """
     lo = ta
     hi = tb
@@ -141,7 +141,7 @@ def dual_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ulo, uhi, vlo, vhi, 
 
 @nb.njit(cache=True)
 def two_stage_lines(p0, dp, l0, dl, tri, axis, a0, a1, ulo, uhi, ta, tb, ops):
-    """Stage-2 time bounds of 001 §3.4 as two lines in the lens coordinate.
+    """Stage-2 time bounds of Wu13 §3.4 as two lines in the lens coordinate.
 
     Along ``axis`` (0: x with lens u, 1: y with v) for the column range
     [a0, a1] and lens range [ulo, uhi], returns (lo_c, lo_s, hi_c, hi_s): every
@@ -149,7 +149,7 @@ def two_stage_lines(p0, dp, l0, dl, tri, axis, a0, a1, ulo, uhi, ta, tb, ops):
     [a0, a1] can be covered satisfies lo_c + lo_s u <= t <= hi_c + hi_s u.
     A lower line above tb (or an upper one below ta) means no such (t, u).
 
-    001 §3.4, eq. 1 gives each vertex's crossing time as a rational function
+    Wu13 §3.4, eq. 1 gives each vertex's crossing time as a rational function
     of u. Here: at fixed u the root in t of the relaxed condition
     A + B t + u (C + E t) = 0 is the Moebius function f(u) = -(A + C u) /
     (B + E u), monotone and either convex or concave where the slope
@@ -166,7 +166,7 @@ def two_stage_lines(p0, dp, l0, dl, tri, axis, a0, a1, ulo, uhi, ta, tb, ops):
     trivial tb or ta - 1, maximum over vertices is convex). Of the two
     conditions (some vertex >= a0, some vertex <= a1) the lower line higher
     at the middle and the upper line lower there are returned, each padded
-    outward by T_PAD_ABS + T_PAD_REL (|c| + |s| umax). Unlike 001's fixed
+    outward by T_PAD_ABS + T_PAD_REL (|c| + |s| umax). Unlike Wu13's fixed
     chord/tangent pair this is conservative for either curvature.
     """
     if not (ulo <= uhi) or not (ta <= tb):

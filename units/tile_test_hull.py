@@ -1,6 +1,6 @@
-"""Convex-hull bound of a motion-blurred triangle (001 §3.2, McGuire et al. 2010).
+"""Convex-hull bound of a motion-blurred triangle (Wu13 §3.2, McGuire10).
 
-For a moving triangle without lens (motion blur only), 001 §3.2 replaces the
+For a moving triangle without lens (motion blur only), Wu13 §3.2 replaces the
 screen-space bounding box of the six vertex positions (the three vertices at
 the start ts and at the end te of the triangle's time span) by their 2D
 convex hull, built with a Graham scan; here with Andrew's monotone chain, its
@@ -45,7 +45,7 @@ def _cross(ox, oy, ax, ay, bx, by):
 
 @nb.njit(cache=True)
 def hull_setup(p0, dp, t_span, tri, hull, hull_n, ops):
-    """Convex hull of the six screen positions of ``tri`` (001 §3.2, McGuire et al. 2010).
+    """Convex hull of the six screen positions of ``tri`` (Wu13 §3.2, McGuire10).
 
     Vertices at ts and te (``t_span[tri]``), projected to (X/W, Y/W); needs
     W > 0 on the span. Writes the hull counter-clockwise (positive signed
@@ -142,7 +142,7 @@ def hull_setup(p0, dp, t_span, tri, hull, hull_n, ops):
 
 @nb.njit(cache=True)
 def hull_overlaps_tile(hull, hull_n, tri, x0, x1, y0, y1, ops):
-    """Does the hull of ``tri`` (001 §3.2, McGuire et al. 2010) overlap [x0, x1] x [y0, y1]?
+    """Does the hull of ``tri`` (Wu13 §3.2, McGuire10) overlap [x0, x1] x [y0, y1]?
 
     Separating-axis test: the tile's two axes, then each hull edge's outward
     normal (for a two-point hull, both normals of the segment; a one-point

@@ -1,7 +1,7 @@
 """Interleave UVT tile test: which of the fixed (u, v, t) tuples can cover a tile.
 
-Part of the tile test unit (PIPELINE.md §2.3, §7). Interleave UVT
-(Fatahalian et al. 2009, as 001 §2 and 002 §2 describe it) rasterizes the
+Part of the tile test unit (docs/pipeline.md §2.3, §7). Interleave UVT
+(Fatahalian09, as Wu13 §2 and Munkberg11 §2 describe it) rasterizes the
 triangle once per tuple of a fixed set of n (u, v, t) values, as an ordinary
 2D triangle; every pixel owns samples of only some of the tuples. Per
 (triangle, tile) record this kernel tests the 2D bounding box of the triangle

@@ -1,12 +1,12 @@
 """Quadratic moving-edge tile test: exact per-tile time intervals of the edges.
 
-The alternative to the linearized moving-edge test (002 §4.2, eq. 8-9, in
+The alternative to the linearized moving-edge test (Munkberg11 §4.2, eq. 8-9, in
 units/tile_test.py): instead of bounding the edge's slope by Gamma, the
-quadratic edge equations of a motion-only triangle (004 §4.1, eq. 3-5),
+quadratic edge equations of a motion-only triangle (Gribel10 §4.1, eq. 3-5),
 
     e_k(x, y, t) = n_k(t) . (x, y, 1),   n_k(t) = f t^2 + g t + h,
 
-are solved per tile for exact time intervals from their roots (004 §4.1).
+are solved per tile for exact time intervals from their roots (Gribel10 §4.1).
 
 At a time t the maximum of e_k over the tile is attained at a corner, so the
 times at which edge k can admit a point of the tile are the union over the
@@ -187,8 +187,8 @@ def quadratic_time_interval(edge_f, edge_g, edge_h, edge_abs, tri, x0, x1, y0, y
     """Narrow [lo, hi] to the times at which all three moving edges of ``tri``
     can admit a point of the tile [x0, x1] x [y0, y1].
 
-    The quadratic alternative to the linearized moving-edge test of 002 §4.2:
-    the edge equations n_k(t) = f t^2 + g t + h (004 §4.1, eq. 3-5) are
+    The quadratic alternative to the linearized moving-edge test of Munkberg11 §4.2:
+    the edge equations n_k(t) = f t^2 + g t + h (Gribel10 §4.1, eq. 3-5) are
     solved exactly per tile, the time intervals taken from their roots.
     ``edge_f``, ``edge_g``, ``edge_h`` are the facing-normalized (N,3,3)
     coefficients (components x, y, 1); ``edge_abs`` bounds per component the

@@ -1,9 +1,9 @@
 """Tile traverser: visits the tiles of each triangle's bounds, coarse then fine.
 
-Implements PIPELINE.md §2.2. Tiles are visited in row-major tile order over
+Implements docs/pipeline.md §2.2. Tiles are visited in row-major tile order over
 the conservative screen bounds from triangle setup. Traversal is
 hierarchical: a coarse tile (``coarse_factor`` x ``coarse_factor`` tiles) is
-first tested with the moving-box test of 002 §4.1 over the triangle's time
+first tested with the moving-box test of Munkberg11 §4.1 over the triangle's time
 span; only the fine tiles of surviving coarse tiles are emitted. With a
 coarse factor of 1 the traversal is flat.
 """
@@ -26,7 +26,7 @@ def traverse_kernel(ids, bounds, t_span, p0, dp, l0, dl, tile_size, coarse_facto
     """Emit (triangle, tile) records for ``ids`` within rows ``[row_lo, row_hi)``
     (a screen region, on coarse-tile rows); returns the number written.
 
-    Coarse tiles are tested against the moving 2DH box (002 §4.1, eq. 1-2).
+    Coarse tiles are tested against the moving 2DH box (Munkberg11 §4.1, eq. 1-2).
     """
     n = 0
     ctile = tile_size * coarse_factor

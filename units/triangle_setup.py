@@ -1,24 +1,24 @@
 """Triangle setup: moving, defocused triangles to per-triangle constants.
 
-Implements PIPELINE.md §2.1. For each triangle of a batch:
+Implements docs/pipeline.md §2.1. For each triangle of a batch:
 
 * clip-space vertices at t=0 and t=1 to pixel-space 2D homogeneous
   coordinates (X, Y, W) with row 0 at the top, pixel centres at +0.5, and the
-  per-vertex lens shift (circle of confusion, linear in w; 001 §3.1);
+  per-vertex lens shift (circle of confusion, linear in w; Wu13 §3.1);
 * temporal frustum culling: the time span [ts, te] in which any vertex, at
-  any lens position, can be inside all six clip planes (002 §3);
+  any lens position, can be inside all six clip planes (Munkberg11 §3);
 * conservative facing: the 2DH determinant D(t, u, v) = p0 . (p2 x p1) is a
   cubic in t and bilinear in (u, v); its Bernstein coefficients bound it, so
-  a triangle is culled as back-facing only if D < 0 everywhere (004 §4.3,
+  a triangle is culled as back-facing only if D < 0 everywhere (Gribel10 §4.3,
   Munkberg and Akenine-Moller 2011) and dropped as degenerate if two
   vertices coincide or D == 0 everywhere;
 * conservative screen bounds: the vertices at ts and te, widened by the lens
   shift at u, v = +-1 (exact extremes, since x = (X + u LX) / W is monotone in
   t and linear in u while W > 0), or the whole screen when a vertex path
-  crosses w = 0 during the shutter (002 §3);
-* the linearized moving-edge constants h and gamma of 002 eq. 4-7 (for
+  crosses w = 0 during the shutter (Munkberg11 §3);
+* the linearized moving-edge constants h and gamma of Munkberg11 eq. 4-7 (for
   motion-only triangles of constant facing), with edge functions
-  e_k(x, y, t) = (f t^2 + g t + h) . (x, y, 1) from 004 eq. 3-5.
+  e_k(x, y, t) = (f t^2 + g t + h) . (x, y, 1) from Gribel10 eq. 3-5.
 """
 
 from __future__ import annotations
@@ -135,7 +135,7 @@ def _det(x0, y0, w0, x1, y1, w1, x2, y2, w2):
 def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_culling,
                  p0, dp, l0, dl, p0_32, dp_32, l0_32, dl_32, t_span, bounds, facing, flags,
                  edge_f, edge_h, edge_gamma, edge_g, edge_fg, edge_abs, ref, edge_eps, plane_n, plane_d, depth_planes, status, ops, events):
-    """Triangle setup for the triangles ``ids`` (PIPELINE §2.1; 002 §3-4, 004 eq. 3-5).
+    """Triangle setup for the triangles ``ids`` (docs/pipeline.md §2.1; Munkberg11 §3-4, Gribel10 eq. 3-5).
 
     Writes the per-triangle tables in place, ``status`` per batch item and
     accumulates ``ops`` (arithmetic classes) and ``events``.
@@ -216,7 +216,7 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
                         abs(px[s, k, 3]))
         edge_eps[tri] = np.float32(2e-6 * m * m * (width + height + 1.0))
 
-        # ---- temporal frustum culling (002 §3), lens-conservative ----------
+        # ---- temporal frustum culling (Munkberg11 §3), lens-conservative --
         ts = 0.0
         te = 1.0
         for plane in range(6):
@@ -380,7 +380,7 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
         bounds[tri, 2] = by0
         bounds[tri, 3] = by1
 
-        # ---- linearized moving edges (002 eq. 4-7), motion-only triangles --
+        # ---- linearized moving edges (Munkberg11 eq. 4-7), motion-only triangles
         if (not has_lens) and facing[tri] != 0:
             sgn = float(facing[tri])
             # bounds aligned to the tile grid: every tile sample lies inside S
@@ -437,7 +437,7 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
             ops[OP_MUL] += 3 * 18
             ops[OP_MADD] += 3 * 18
             ops[OP_CMP] += 3 * 6
-        # ---- moving plane equations for depth bounds (000 Appendix A) -------
+        # ---- moving plane equations for depth bounds (Nilsson12 App. A) ----
         if depth_planes and wpos:
             for which in range(2):
                 # plane through the triangle at t=0 (which=0) or t=1 (which=1), in (X, Y, W)
@@ -501,7 +501,7 @@ class TriangleSetup:
         self.config = config
         self.draw = draw
         self.tile_size = tile_size
-        self.hull = hull  # also set up the convex hull of the moving vertices (McGuire et al. 2010)
+        self.hull = hull  # also set up the convex hull of the moving vertices (McGuire10)
         self.table = TriangleTable.allocate(draw.n)
 
     def run(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -525,7 +525,7 @@ class TriangleSetup:
 @nb.njit(cache=True)
 def _hulls(ids, p0, dp, t_span, flags, hull, hull_n, ops):
     """Convex hulls of the six projected vertices of the motion-only triangles
-    in front of the camera (McGuire et al. 2010, 001 §3.2)."""
+    in front of the camera (McGuire10, Wu13 §3.2)."""
     for tri in ids:
         if (flags[tri] & FLAG_WPOS) != 0 and (flags[tri] & FLAG_LENS) == 0:
             hull_setup(p0, dp, t_span, tri, hull, hull_n, ops)

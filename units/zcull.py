@@ -1,6 +1,6 @@
 """Z-cull: per-tile zmin/zmax over boxes of (t, u, v) space.
 
-Implements PIPELINE.md §2.4 (000 §3; 002 §2). Each screen tile keeps a zmax
+Implements docs/pipeline.md §2.4 (Nilsson12 §3; Munkberg11 §2). Each screen tile keeps a zmax
 and a zmin for each of ``time_slices x lens_boxes x lens_boxes`` disjoint
 boxes of (t, u, v) space. A (triangle, tile) record whose nearest depth z^lo
 lies behind zmax in every box its intervals touch cannot pass the depth test
@@ -36,7 +36,7 @@ def _box_range(lo, hi, n, offset, scale):
 @nb.njit(cache=True)
 def zcull_kernel(tri, tx, ty, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, tiles_x,
                  nt, nl, zmax, zmin, func, keep, noread, ops, events):
-    """Cull records whose z^ lies behind zmax in every touched box (000 §3)."""
+    """Cull records whose z^ lies behind zmax in every touched box (Nilsson12 §3)."""
     for i in range(tri.shape[0]):
         tile = ty[i] * tiles_x + tx[i]
         t0, t1 = _box_range(t_lo[i], t_hi[i], nt, 0.0, 1.0)

@@ -1,4 +1,4 @@
-"""Shared checks for the hard-case catalogue (PIPELINE.md §8).
+"""Shared checks for the hard-case catalogue (docs/pipeline.md §8).
 
 A *case* is a named set of clip-space triangles ``(q, r, lens_x, lens_y)``
 (each ``(N, 3, 4)`` / ``(N, 3, 2)`` float64, as ``draw_from_clip`` takes
@@ -580,7 +580,7 @@ def assert_single_layer_counts(res, full_rows=(), what=""):
 
 
 def check_conservative_mode(case, spp=64, seed=5, ztol=1e-5):
-    """Conservative mode (000 §2: 1x1 tiles, no sample tester, one interval-shader
+    """Conservative mode (Nilsson12 §2: 1x1 tiles, no sample tester, one interval-shader
     run per (triangle, pixel)): finite output, and every (pixel, t) the exact test
     covers is emitted with t in t^ and its depth in z^. Single-triangle cases."""
     from pipeline_sim.sampling import make_samples

@@ -1,4 +1,4 @@
-"""Hard case: circle of confusion near zero at the focus plane (PIPELINE §8; 001 §3.1).
+"""Hard case: circle of confusion near zero at the focus plane (docs/pipeline.md §8; Wu13 §3.1).
 
 The lens shift of a vertex is R (w / F - 1) per unit lens coordinate: zero
 exactly on the focus plane, tiny near it, changing sign across it. The lens

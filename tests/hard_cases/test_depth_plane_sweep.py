@@ -1,5 +1,5 @@
-"""Hard case: the moving depth plane of 000 Appendix A sweeping through the
-camera and through the lens (PIPELINE §8).
+"""Hard case: the moving depth plane of Nilsson12 App. A sweeping through the
+camera and through the lens (docs/pipeline.md §8).
 
 With perspective depth (z/w = C1 + C0 / w) the tile test bounds w along the
 tile's rays by the triangle's plane, moved linearly between its t = 0 and

@@ -1,4 +1,4 @@
-"""Hard case: coordinates from 1e-6 to 1e6 (PIPELINE §8).
+"""Hard case: coordinates from 1e-6 to 1e6 (docs/pipeline.md §8).
 
 Homogeneous clip coordinates are scale-free: (x, y, z, w) and s (x, y, z, w)
 are the same point, so the image must not depend on s. Every absolute

@@ -1,4 +1,4 @@
-"""Hard case: facing that changes mid-shutter (PIPELINE §8; 004 §4.3).
+"""Hard case: facing that changes mid-shutter (docs/pipeline.md §8; Gribel10 §4.3).
 
 The 2DH determinant D(t, u, v) is cubic in t and bilinear in (u, v). A
 triangle that turns through edge-on changes the sign of D during the

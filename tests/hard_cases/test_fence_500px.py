@@ -1,4 +1,4 @@
-"""Hard case: motion of 500 pixels per frame, the fence of 004 Fig. 11 (PIPELINE §8).
+"""Hard case: motion of 500 pixels per frame, the fence of Gribel10 Fig. 11 (docs/pipeline.md §8).
 
 Thin slats sweeping 500 px during the shutter: each pixel of the swept band
 sees a slat for under 1% of the shutter, the moving bounds are 250 times the

@@ -1,4 +1,4 @@
-"""Hard case: float32 sample tests against float64 (PIPELINE §8).
+"""Hard case: float32 sample tests against float64 (docs/pipeline.md §8).
 
 Triangle setup works in float64; the sample tester, as hardware would, lerps
 float32 copies of the vertices to each sample's (t, u, v) and evaluates

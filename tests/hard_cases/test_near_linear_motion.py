@@ -1,4 +1,4 @@
-"""Hard case: near-linear edge motion (PIPELINE §8; 002 §4.2, 004 eq. 3-5).
+"""Hard case: near-linear edge motion (docs/pipeline.md §8; Munkberg11 §4.2, Gribel10 eq. 3-5).
 
 A moving edge's function is e(t) = (f t^2 + g t + h) . (x, y, 1) with
 f = d_j x d_i, the cross product of the two vertices' motion vectors. Under

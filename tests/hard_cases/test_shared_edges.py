@@ -1,4 +1,4 @@
-"""Hard case: samples exactly on shared edges and vertices (PIPELINE §8; 003 §3.4).
+"""Hard case: samples exactly on shared edges and vertices (docs/pipeline.md §8; Davidovic12 §3.4).
 
 A sample on an edge shared by two triangles, or on a vertex shared by many,
 must be covered by exactly one of them: the top-left rule decides, and it

@@ -1,4 +1,4 @@
-"""Hard case: sliver and sub-pixel triangles (PIPELINE §8).
+"""Hard case: sliver and sub-pixel triangles (docs/pipeline.md §8).
 
 A sliver's determinant is tiny next to the products it is computed from, so
 its sign and its edge functions are dominated by rounding; a sub-pixel

@@ -1,4 +1,4 @@
-"""Hard case: vertex paths crossing w = 0 during the shutter (PIPELINE §8; 002 §3).
+"""Hard case: vertex paths crossing w = 0 during the shutter (docs/pipeline.md §8; Munkberg11 §3).
 
 While a vertex is behind the camera its projection X/W is undefined and the
 triangle is an "external" one: the visible part is not the hull of the

@@ -1,4 +1,4 @@
-"""Hard case: zero area at some t (PIPELINE §8; 004 eq. 10-13).
+"""Hard case: zero area at some t (docs/pipeline.md §8; Gribel10 eq. 10-13).
 
 A triangle that collapses to a segment or a point at some instant has
 D = 0 there: barycentrics e_k / sum(e) and depth sum(e Z) / sum(e W) divide
