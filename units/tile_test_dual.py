@@ -41,7 +41,7 @@ import numba as nb
 import numpy as np
 
 from pipeline_sim.counters import OP_ADD, OP_CMP, OP_MADD, OP_MUL, OP_RCP
-from units.tile_test import F32_REL
+from units.rounding import F32_REL
 
 T_PAD_ABS = 1e-6  # absolute time pad of the stage-2 lines
 T_PAD_REL = 1e-12  # relative pad: float64 rounding of the bounds themselves
