@@ -36,10 +36,14 @@ References (:class:`ReferenceSpec`, :func:`reference_image`):
   pipeline's per-pixel sample pattern, which makes it a check on that
   pattern too.
 
-Both use the default tile test and the standard (not conservative) pipeline
-mode; the architecture's cost model never changes images, so the reference
-depends only on the scene, its image size and the spec. Both are cached as
-``<cache_dir>/<key>.npy`` when a cache directory is given.
+Both keep the architecture's settings declared to define the image (depth
+test, blending, clip planes, backface culling), take the declared reference
+for each accuracy setting (per-sample shading, the net pattern, the
+standard rather than conservative mode) and the shipped defaults for the
+rest, which cannot change the image (:func:`pipeline_sim.config.reference_arch`).
+So a reference depends only on the scene, its image size, the spec and
+those image settings. Both are cached as ``<cache_dir>/<key>.npy`` when a
+cache directory is given.
 """
 
 from __future__ import annotations
@@ -55,7 +59,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline_sim.config import ArchConfig, load_arch
+from pipeline_sim.config import IMAGE, ArchConfig, load_arch, reference_arch, settings_of
 from pipeline_sim.output import atomic_save_npy
 from pipeline_sim.errors import UserError, did_you_mean
 
@@ -70,11 +74,6 @@ REFERENCE_KINDS = ("pipeline", "accumulation")
 # Bumped whenever the way a reference is computed changes: old cache files
 # then simply stop matching.
 _KEY_VERSION = "pipeline-sim-reference-v1"
-# Architecture settings that change images (everything else is cost model or
-# conservative culling); the key includes them only when they differ from
-# the shipped defaults.
-_IMAGE_ARCH_KEYS = (("triangle_setup", "backface_culling"), ("rop", "depth_test"), ("rop", "depth_write"),
-                    ("rop", "blend"))
 
 
 # ---------------------------------------------------------------------------
@@ -180,16 +179,12 @@ def _sha(obj: Any) -> str:
 
 
 def _image_arch(arch: ArchConfig | None) -> dict[str, Any]:
-    """The image-changing architecture settings that differ from the defaults."""
+    """The settings declared to define the image (config.IMAGE) that differ from the defaults:
+    the reference key includes them, so the keys of default-architecture references stay stable."""
     if arch is None:
         return {}
-    default = load_arch()
-    out = {}
-    for section, key in _IMAGE_ARCH_KEYS:
-        value = getattr(getattr(arch, section), key)
-        if value != getattr(getattr(default, section), key):
-            out[f"{section}.{key}"] = value
-    return out
+    default = settings_of(load_arch(), (IMAGE,))
+    return {k: v for k, v in settings_of(arch, (IMAGE,)).items() if v != default[k]}
 
 
 @dataclass(frozen=True)
@@ -258,18 +253,6 @@ class ReferenceSpec:
         return _sha(data)[:32]
 
 
-def _reference_arch(arch: ArchConfig | None) -> ArchConfig:
-    """``arch`` (default: the shipped one) with per-sample shading, the shipped
-    default tile test and the standard pipeline mode."""
-    shipped = load_arch()
-    base = shipped if arch is None else arch
-    return base.replace(
-        pipeline=dataclasses.replace(base.pipeline, mode="standard", sample_pattern="net"),
-        shading=dataclasses.replace(base.shading, mode="per_sample"),
-        tile_test=dataclasses.replace(shipped.tile_test),
-    ).validate("reference arch")
-
-
 def _sobol_table(passes: int, seed: int) -> np.ndarray:
     """(passes, 5) sample-table rows (x, y, u, v, t): scrambled 5D Sobol points
     (dims dx, dy, t, u, v) with (u, v) on the unit disk."""
@@ -308,16 +291,18 @@ def reference_image(scene, spec: ReferenceSpec = ReferenceSpec(), cache_dir: str
                     arch: ArchConfig | None = None) -> np.ndarray:
     """Reference image (H, W, 4) float32 linear RGBA of ``scene`` at its image size.
 
-    ``arch`` defaults to the shipped architecture; either way shading is
-    forced to per-sample, the tile test to its defaults and the pipeline to
-    standard mode (its costs never change the image). With ``cache_dir`` the
+    ``arch`` defaults to the shipped architecture; the reference keeps its
+    image-defining settings (depth test, blending, clip planes, backface
+    culling) and takes the declared reference for each accuracy setting
+    (per-sample shading, the net pattern, standard mode):
+    :func:`pipeline_sim.config.reference_arch`. With ``cache_dir`` the
     result is read from / written to ``cache_dir/<spec.key(...)>.npy`` (written
     to a temporary name, then renamed, so readers never see a partial file).
     """
     if not isinstance(spec, ReferenceSpec):
         raise UserError(f"reference spec must be a ReferenceSpec, got {type(spec).__name__}")
     spec.validate()
-    ref_arch = _reference_arch(arch)
+    ref_arch = reference_arch(arch)
     shape = (scene.image.height, scene.image.width, 4)
     path = None
     if cache_dir is not None:

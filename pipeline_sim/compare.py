@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline_sim.config import ArchConfig, apply_overrides
+from pipeline_sim.config import ACCURACY, ArchConfig, apply_overrides, settings_of
 from pipeline_sim.errors import UserError, did_you_mean
 
 _HIER = "tile_test.algorithm='hierarchical'"
@@ -47,8 +47,6 @@ ALGORITHMS: dict[str, list[str]] = {
     "exact/pixel": [_HIER, "tile_test.edge_test=true", "tile_test.edge_solver='quadratic'",
                     "tile_test.lens_bounds=true", "tile_traverser.tile_size=1", "tile_traverser.coarse_factor=8"],
 }
-# run on the discrete (u, v, t) tuple set of Interleave UVT, not the continuous samples
-DISCRETE = ("interleave_uvt", "bbox/interleave")
 DESCRIPTIONS = {
     "bbox": "every sample in the moving, defocused bounds (Wu13/Munkberg11 baseline)",
     "box": "moving box vs tile frustum planes (Munkberg11 §4.1)",
@@ -158,36 +156,43 @@ def _row(name: str, result) -> dict:
     return row
 
 
+def _accuracy_settings(arch: ArchConfig) -> tuple:
+    return tuple(sorted(settings_of(arch, (ACCURACY,)).items()))
+
+
 def compare(scene, arch: ArchConfig, algorithms: list[str], progress=None,
             reference: np.ndarray | None = None) -> Comparison:
     """Render ``scene`` with each algorithm; tabulate and check the images are identical.
 
-    Algorithms on the continuous samples must all give the first one's
-    image, and those on Interleave UVT's discrete set (``DISCRETE``) the
-    first of theirs. Each row's image error (RMSE, PSNR) is measured against
-    ``reference`` if given, else against the first continuous-sample image.
+    A culling algorithm may change only settings declared not to change
+    the image (``counters``, ``cycles``) and those declared to trade
+    accuracy (the sample set); algorithms whose ``accuracy`` settings agree
+    must give the same image: those on the continuous samples the first
+    one's, those on Interleave UVT's discrete sample set the first of
+    theirs. Each row's image error (RMSE, PSNR) is measured against
+    ``reference`` if given, else against the first image whose accuracy
+    settings are those of ``arch`` itself, else the first image.
     """
     from pipeline_sim.accuracy import error_metrics
     from pipeline_sim.render import render_scene
 
-    rows, images = [], {}
+    rows, images, groups = [], {}, {}
     for name in algorithms:
-        result = render_scene(scene, apply_overrides(arch, ALGORITHMS[name]))
+        arch_n = apply_overrides(arch, ALGORITHMS[name])
+        groups.setdefault(_accuracy_settings(arch_n), []).append(name)
+        result = render_scene(scene, arch_n)
         dimensions = result.dimensions
         rows.append(_row(name, result))
         images[name] = result.image
         if progress is not None:
             progress(name, rows[-1])
-    differing = []
-    for group in ([n for n in algorithms if n not in DISCRETE], [n for n in algorithms if n in DISCRETE]):
-        differing += [n for n in group[1:] if not np.array_equal(images[n], images[group[0]])]
+    differing = [n for group in groups.values() for n in group[1:] if not np.array_equal(images[n], images[group[0]])]
     table = pd.DataFrame(rows)
-    continuous = [n for n in algorithms if n not in DISCRETE]
-    against = reference if reference is not None else (images[continuous[0]] if continuous else None)
-    if against is not None:
-        errors = [error_metrics(images[n], against) for n in algorithms]
-        table["rmse"] = [e["rmse"] for e in errors]
-        table["psnr_db"] = [e["psnr"] for e in errors]
+    own = groups.get(_accuracy_settings(arch), algorithms)
+    against = reference if reference is not None else images[own[0]]
+    errors = [error_metrics(images[n], against) for n in algorithms]
+    table["rmse"] = [e["rmse"] for e in errors]
+    table["psnr_db"] = [e["psnr"] for e in errors]
     base = table[table.algorithm == "bbox"]
     ref = base.iloc[0] if len(base) else table.iloc[0]
     table["ste_vs_baseline"] = table.ste / ref.ste if ref.ste else float("nan")

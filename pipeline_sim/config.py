@@ -4,11 +4,24 @@ Every unit owns one section. Values are typed and checked when the
 configuration is built (``load_arch``); unknown names are errors that suggest
 the nearest known name. ``--set section.key=value`` overrides use the same
 dotted paths.
+
+Every setting declares what it can change (:data:`EFFECTS`), from most to
+least: ``image`` (it defines the picture: depth test, blending, clip planes,
+backface culling), ``accuracy`` (it trades image error for cost: sample
+pattern, shading mode and cache, pipeline mode; with a declared reference
+value where one exists), ``counters`` (the functional counters only, never
+the image: tile size, culling algorithm, z-cull boxes) or ``cycles`` (the
+cost model only: throughputs, latencies, batch sizes, queue depth; these
+can still move the counters that depend on timing, docs/pipeline.md §4).
+The accuracy reference of a sweep (:func:`reference_arch`) and the groups
+of algorithms ``compare`` expects the same image from (those whose
+``accuracy`` settings agree) are derived from these declarations.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -37,20 +50,31 @@ EDGE_SOLVERS = ("linearized", "quadratic")
 SAMPLE_PATTERNS = tuple(p for p in PATTERNS if p != "table")
 
 
+IMAGE, ACCURACY, COUNTERS, CYCLES = "image", "accuracy", "counters", "cycles"
+#: What a setting can change, from most to least (see the module docstring).
+EFFECTS = (IMAGE, ACCURACY, COUNTERS, CYCLES)
+
+
+def setting(default: Any, effect: str, reference: Any = None) -> Any:
+    """A configuration field with its declared effect (and, for ``accuracy``, the reference's value)."""
+    assert effect in EFFECTS and (reference is None or effect == ACCURACY)
+    return field(default=default, metadata={"effect": effect, "reference": reference})
+
+
 @dataclass
 class PipelineConfig:
     """Global pipeline settings: mode, batching and channel depth."""
 
-    mode: str = "standard"
-    triangles_per_batch: int = 64
-    tiles_per_batch: int = 512
-    samples_per_batch: int = 65536
-    queue_depth: int = 4
-    clock_ghz: float = 1.0
-    specialize: bool = True
-    sample_pattern: str = "net"
-    interleave_tuples: int = 64
-    region_samples: int = 1 << 22
+    mode: str = setting("standard", ACCURACY, reference="standard")
+    triangles_per_batch: int = setting(64, CYCLES)
+    tiles_per_batch: int = setting(512, CYCLES)
+    samples_per_batch: int = setting(65536, CYCLES)
+    queue_depth: int = setting(4, CYCLES)
+    clock_ghz: float = setting(1.0, CYCLES)
+    specialize: bool = setting(True, COUNTERS)
+    sample_pattern: str = setting("net", ACCURACY, reference="net")
+    interleave_tuples: int = setting(64, ACCURACY)
+    region_samples: int = setting(1 << 22, COUNTERS)
 
     def validate(self, where: str) -> None:
         _choice(where, "mode", self.mode, ("standard", "conservative"))
@@ -68,9 +92,9 @@ class PipelineConfig:
 class UnitTiming:
     """Cost model shared by every unit: items per cycle per instance, latency, instances."""
 
-    throughput: float = 1.0
-    latency: int = 10
-    instances: int = 1
+    throughput: float = setting(1.0, CYCLES)
+    latency: int = setting(10, CYCLES)
+    instances: int = setting(1, CYCLES)
 
     def validate(self, where: str) -> None:
         _positive(where, "throughput", self.throughput)
@@ -82,7 +106,7 @@ class UnitTiming:
 class TriangleSetupConfig(UnitTiming):
     throughput: float = 0.5
     latency: int = 30
-    backface_culling: bool = False
+    backface_culling: bool = setting(False, IMAGE)
 
     def validate(self, where: str) -> None:
         super().validate(where)
@@ -92,8 +116,8 @@ class TriangleSetupConfig(UnitTiming):
 class TileTraverserConfig(UnitTiming):
     throughput: float = 2.0
     latency: int = 4
-    tile_size: int = 4
-    coarse_factor: int = 4
+    tile_size: int = setting(4, COUNTERS)
+    coarse_factor: int = setting(4, COUNTERS)
 
     def validate(self, where: str) -> None:
         super().validate(where)
@@ -107,18 +131,18 @@ class TileTestConfig(UnitTiming):
     throughput: float = 1.0
     latency: int = 12
     instances: int = 2
-    algorithm: str = "hierarchical"
-    edge_test: bool = True
-    edge_solver: str = "linearized"
-    gamma: str = "triangle"
-    lens_bounds: bool = True
+    algorithm: str = setting("hierarchical", COUNTERS)
+    edge_test: bool = setting(True, COUNTERS)
+    edge_solver: str = setting("linearized", COUNTERS)
+    gamma: str = setting("triangle", COUNTERS)
+    lens_bounds: bool = setting(True, COUNTERS)
     # axis-aligned user clip planes on t, u and v (Nilsson12 §2): samples outside are never covered
-    clip_t_lo: float = 0.0
-    clip_t_hi: float = 1.0
-    clip_u_lo: float = -1.0
-    clip_u_hi: float = 1.0
-    clip_v_lo: float = -1.0
-    clip_v_hi: float = 1.0
+    clip_t_lo: float = setting(0.0, IMAGE)
+    clip_t_hi: float = setting(1.0, IMAGE)
+    clip_u_lo: float = setting(-1.0, IMAGE)
+    clip_u_hi: float = setting(1.0, IMAGE)
+    clip_v_lo: float = setting(-1.0, IMAGE)
+    clip_v_hi: float = setting(1.0, IMAGE)
 
     def validate(self, where: str) -> None:
         super().validate(where)
@@ -143,9 +167,9 @@ class TileTestConfig(UnitTiming):
 class ZCullConfig(UnitTiming):
     throughput: float = 2.0
     latency: int = 6
-    enabled: bool = True
-    time_slices: int = 4
-    lens_boxes: int = 2
+    enabled: bool = setting(True, COUNTERS)
+    time_slices: int = setting(4, COUNTERS)
+    lens_boxes: int = setting(2, COUNTERS)
 
     def validate(self, where: str) -> None:
         super().validate(where)
@@ -166,13 +190,13 @@ class SampleTesterConfig(UnitTiming):
 class ShadingConfig(UnitTiming):
     throughput: float = 8.0
     latency: int = 40
-    mode: str = "cache"
-    cache_entries: int = 1024
-    cache_ways: int = 8
-    replacement: str = "lru"
-    shading_rate: float = 1.0
-    shader_cycles: float = 32.0
-    cores: int = 32
+    mode: str = setting("cache", ACCURACY, reference="per_sample")
+    cache_entries: int = setting(1024, ACCURACY)
+    cache_ways: int = setting(8, ACCURACY)
+    replacement: str = setting("lru", ACCURACY)
+    shading_rate: float = setting(1.0, ACCURACY)
+    shader_cycles: float = setting(32.0, CYCLES)
+    cores: int = setting(32, CYCLES)
 
     def validate(self, where: str) -> None:
         super().validate(where)
@@ -194,10 +218,10 @@ class ShadingConfig(UnitTiming):
 class RopConfig(UnitTiming):
     throughput: float = 16.0
     latency: int = 20
-    depth_test: str = "less"
-    depth_write: bool = True
-    blend: str = "replace"
-    bandwidth: float = 64.0
+    depth_test: str = setting("less", IMAGE)
+    depth_write: bool = setting(True, IMAGE)
+    blend: str = setting("replace", IMAGE)
+    bandwidth: float = setting(64.0, CYCLES)
 
     def validate(self, where: str) -> None:
         super().validate(where)
@@ -237,6 +261,57 @@ class ArchConfig:
 
 
 SECTION_NAMES = tuple(f.name for f in fields(ArchConfig))
+
+
+def _declaration(section_type: type, name: str) -> dict[str, Any]:
+    """The metadata of a setting, from the nearest class that declares it (a unit's own
+    default for ``throughput`` keeps :class:`UnitTiming`'s declaration)."""
+    for cls in section_type.__mro__:
+        f = getattr(cls, "__dataclass_fields__", {}).get(name)
+        if f is not None and "effect" in f.metadata:
+            return dict(f.metadata)
+    raise AssertionError(f"{section_type.__name__}.{name} declares no effect")
+
+
+@functools.cache
+def setting_effects() -> dict[str, str]:
+    """``"section.key"`` -> the declared effect, for every architecture setting."""
+    arch = ArchConfig()
+    return {f"{name}.{f.name}": _declaration(type(getattr(arch, name)), f.name)["effect"]
+            for name in SECTION_NAMES for f in fields(getattr(arch, name))}
+
+
+def settings_of(arch: "ArchConfig", effects: tuple[str, ...]) -> dict[str, Any]:
+    """The values of the settings of ``arch`` whose declared effect is among ``effects``."""
+    out = {}
+    for path, effect in setting_effects().items():
+        if effect in effects:
+            section, key = path.split(".")
+            out[path] = getattr(getattr(arch, section), key)
+    return out
+
+
+def reference_arch(arch: "ArchConfig | None") -> "ArchConfig":
+    """The architecture of an accuracy reference for ``arch``: its ``image`` settings kept, each
+    ``accuracy`` setting at its declared reference value (else the shipped default), and the
+    ``counters`` and ``cycles`` settings, which cannot change the image, at the shipped defaults."""
+    shipped = load_arch()
+    if arch is None:
+        arch = shipped
+    sections = {}
+    for sec in fields(ArchConfig):
+        mine, default = getattr(arch, sec.name), getattr(shipped, sec.name)
+        values = {}
+        for f in fields(mine):
+            decl = _declaration(type(mine), f.name)
+            if decl["effect"] == IMAGE:
+                values[f.name] = getattr(mine, f.name)
+            elif decl["effect"] == ACCURACY and decl["reference"] is not None:
+                values[f.name] = decl["reference"]
+            else:
+                values[f.name] = getattr(default, f.name)
+        sections[sec.name] = dataclasses.replace(default, **values)
+    return ArchConfig(**sections).validate("reference arch")
 
 
 def _choice(where: str, name: str, value: Any, choices: tuple[str, ...]) -> None:

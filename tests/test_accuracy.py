@@ -209,3 +209,23 @@ def test_keys(root, scene):
     assert acc.key(scene) != dataclasses.replace(acc, passes=16).key(scene)
     # cost-model changes do not change the key
     assert k == base.key(scene, load_arch(overrides=["zcull.time_slices=8", "shading.cores=4"]))
+
+
+def test_reference_keeps_the_image_settings_such_as_clip_planes(scene):
+    """A sweep point with a user clip plane is scored against a reference with that clip plane.
+
+    The reference must equal a plain per-sample render with the same clip at
+    the reference's spp and seed; before the settings declared their effects,
+    the reference reset the whole tile-test section and dropped the plane.
+    """
+    clip = "tile_test.clip_t_hi=0.3"
+    spec = ReferenceSpec(spp=16)
+    clipped_ref = reference_image(scene, spec, arch=load_arch(overrides=[clip, "tile_test.algorithm='bbox'"]))
+    direct = render_scene(scene.replace(image=dataclasses.replace(scene.image, spp=16, seed=spec.seed)),
+                          load_arch(overrides=[clip, "shading.mode='per_sample'"])).image
+    assert np.array_equal(clipped_ref, direct)
+    unclipped_ref = reference_image(scene, spec)
+    point = render_scene(scene.replace(image=dataclasses.replace(scene.image, spp=8)),
+                         load_arch(overrides=[clip])).image
+    assert error_metrics(point, clipped_ref)["rmse"] < 0.5 * error_metrics(point, unclipped_ref)["rmse"]
+    assert spec.key(scene, load_arch(overrides=[clip])) != spec.key(scene)

@@ -10,6 +10,8 @@ from __future__ import annotations
 import dataclasses
 import tomllib
 
+import numpy as np
+import pandas as pd
 import pytest
 
 from pipeline_sim.config import (BLEND_MODES, DEFAULT_ARCH_PATH, DEPTH_FUNCS, SECTION_NAMES, ArchConfig,
@@ -256,3 +258,109 @@ def test_leaving_conservative_mode_restores_tile_size(tmp_path):
     arch = load_arch(f, overrides=["pipeline.mode=standard"])
     assert arch.pipeline.mode == "standard"
     assert arch.tile_traverser.tile_size == shipped()["tile_traverser"]["tile_size"]
+
+
+# --- what each setting declares it can change -----------------------------------
+
+def _alternative(path: str, value):
+    """A valid value other than the default, for every setting."""
+    special = {"pipeline.mode": "conservative", "pipeline.sample_pattern": "sobol", "pipeline.interleave_tuples": 32,
+               "pipeline.region_samples": 4096, "tile_test.algorithm": "bbox", "tile_test.edge_solver": "quadratic",
+               "tile_test.gamma": "tile", "tile_test.clip_t_hi": 0.5, "tile_test.clip_t_lo": 0.5,
+               "tile_test.clip_u_lo": 0.0, "tile_test.clip_u_hi": 0.0, "tile_test.clip_v_lo": 0.0,
+               "tile_test.clip_v_hi": 0.0, "tile_traverser.tile_size": 16, "tile_traverser.coarse_factor": 2,
+               "zcull.lens_boxes": 3, "shading.mode": "per_sample", "shading.replacement": "fifo",
+               "rop.depth_test": "greater", "rop.blend": "add", "shading.cache_ways": 4}
+    if path in special:
+        return special[path]
+    if isinstance(value, bool):
+        return not value
+    if isinstance(value, int):
+        return max(1, value // 2) if value > 1 else 3
+    if isinstance(value, float):
+        return value * 0.5
+    raise AssertionError(f"no alternative for {path} = {value!r}")
+
+
+def test_every_setting_declares_what_it_can_change():
+    from pipeline_sim.config import EFFECTS, setting_effects
+
+    effects = setting_effects()
+    arch = load_arch()
+    listed = {f"{s}.{f.name}" for s in SECTION_NAMES for f in dataclasses.fields(getattr(arch, s))}
+    assert set(effects) == listed and set(effects.values()) <= set(EFFECTS)
+    # every setting's alternative value is valid on its own
+    for path in effects:
+        section, key = path.split(".")
+        value = _alternative(path, getattr(getattr(arch, section), key))
+        apply_overrides(arch, [f"{path}={value!r}".replace("True", "true").replace("False", "false")
+                               .replace("'", '"')])
+
+
+@pytest.fixture(scope="module")
+def blurred_scene(root):
+    from pipeline_sim.scene import load_scene
+
+    s = load_scene(root / "workloads/scenes/default.toml")
+    return s.replace(image=dataclasses.replace(s.image, width=48, height=27, spp=4))
+
+
+def _override(path, value):
+    return f"{path}={value!r}".replace("True", "true").replace("False", "false").replace("'", '"')
+
+
+def test_settings_declared_not_to_change_the_image_do_not(blurred_scene):
+    """Measured, not assumed: every `counters` and `cycles` setting, moved off its default, leaves the image
+    bit-identical; with z-cull (the one path from timing back to the work) off, every `cycles` setting leaves
+    every counter identical too."""
+    from pipeline_sim.config import COUNTERS, CYCLES, setting_effects
+    from pipeline_sim.render import render_scene
+
+    base = load_arch()
+    reference = render_scene(blurred_scene, base)
+    no_zcull = load_arch(overrides=["zcull.enabled=false"])
+    reference_counters = render_scene(blurred_scene, no_zcull).counters
+    checked = 0
+    for path, effect in setting_effects().items():
+        if effect not in (COUNTERS, CYCLES):
+            continue
+        section, key = path.split(".")
+        change = _override(path, _alternative(path, getattr(getattr(base, section), key)))
+        image = render_scene(blurred_scene, apply_overrides(base, [change])).image
+        assert np.array_equal(image, reference.image), path
+        if effect == CYCLES:
+            counters = render_scene(blurred_scene, apply_overrides(no_zcull, [change])).counters
+            pd.testing.assert_frame_equal(counters, reference_counters, obj=path)
+        checked += 1
+    assert checked >= 35
+
+
+def test_reference_arch_follows_the_declarations():
+    from pipeline_sim.config import IMAGE, reference_arch, settings_of, setting_effects
+
+    user = load_arch(overrides=["tile_test.clip_t_hi=0.3", "rop.depth_test='lequal'", "shading.mode='cache'",
+                                "pipeline.sample_pattern='interleave'", "tile_test.algorithm='interleave_uvt'",
+                                "zcull.time_slices=8", "rop.throughput=3.0"])
+    ref = reference_arch(user)
+    assert settings_of(ref, (IMAGE,)) == settings_of(user, (IMAGE,))
+    assert (ref.shading.mode, ref.pipeline.sample_pattern, ref.pipeline.mode) == ("per_sample", "net", "standard")
+    shipped = load_arch()
+    for path, effect in setting_effects().items():
+        if effect in ("counters", "cycles"):
+            section, key = path.split(".")
+            assert getattr(getattr(ref, section), key) == getattr(getattr(shipped, section), key), path
+
+
+def test_the_docs_table_of_effects_matches_the_declarations(root):
+    from pipeline_sim.config import setting_effects
+
+    text = (root / "docs/architecture-format.md").read_text()
+    rows = {line.split("|")[1].strip(" `"): line.split("|")[3] for line in text.splitlines()
+            if line.startswith("| `") and line.split("|")[1].strip(" `") in ("image", "accuracy", "counters", "cycles")}
+    assert len(rows) == 4
+    for path, effect in setting_effects().items():
+        if path.split(".")[1] in ("throughput", "latency", "instances"):
+            assert "every unit's `throughput`, `latency` and `instances`" in rows["cycles"]
+            continue
+        listed_in = [e for e, cell in rows.items() if f"`{path}`" in cell]
+        assert listed_in == [effect], (path, listed_in)
