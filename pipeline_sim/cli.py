@@ -11,7 +11,7 @@ import sys
 import time
 from pathlib import Path
 
-from pipeline_sim.errors import UserError
+from pipeline_sim.errors import OutputError, UserError
 
 EXIT_USER_ERROR = 2
 
@@ -198,8 +198,7 @@ def cmd_compare(args) -> int:
                 "arch": arch.to_dict(), "algorithms": algorithms, "compile_time_s": compile_s,
                 "versions": _package_versions()}
         if out is not None:
-            write_comparison(comp, out.staging, info)
-            out.commit()
+            write_comparison(comp, out, info)
     if not args.quiet:
         print(format_table(comp.table))
         if comp.checks:
@@ -340,7 +339,9 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--out", "-o", required=True, metavar="DIR",
                        help="results folder: new, empty, or an earlier run of the same sweep (resumed)")
     sweep.add_argument("--force", action="store_true",
-                       help="write the sweep into an existing folder that holds other files (none is removed)")
+                       help="write the sweep into an existing folder that holds other files: the sweep's own names "
+                       "(sweep.json, points.csv, results.csv, points/, records/, reference/) are replaced there, "
+                       "nothing else is touched")
     sweep.add_argument("--executor", choices=("local", "dask", "serial"), default="local",
                        help="local: a process pool on this machine (default); dask: a Dask cluster (--scheduler, or "
                        "a local cluster on 127.0.0.1); serial: in this process")
@@ -383,7 +384,10 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as exc:
         print(f"pipeline-sim: error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
-    except OSError as exc:   # the machine, not the input: a full disk, a folder made read-only mid-run
+    except OutputError as exc:   # the machine, not the input: a full disk, a folder made read-only mid-run
+        print(f"pipeline-sim: error: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"pipeline-sim: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 1

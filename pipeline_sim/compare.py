@@ -25,6 +25,7 @@ import pandas as pd
 
 from pipeline_sim.config import ACCURACY, ArchConfig, apply_overrides, settings_of
 from pipeline_sim.errors import UserError, did_you_mean
+from pipeline_sim.output_folder import OutputFolder
 
 _HIER = "tile_test.algorithm='hierarchical'"
 _INTERLEAVE = "pipeline.sample_pattern='interleave'"
@@ -227,17 +228,14 @@ def comparison_figure(table: pd.DataFrame):
     return fig
 
 
-def write_comparison(comp: Comparison, folder: Path, info: dict) -> None:
-    """Write table.csv, comparison.json, comparison.png and one image per algorithm into ``folder``.
-
-    ``folder`` is the staging folder of a claimed
-    :class:`~pipeline_sim.output_folder.OutputFolder` (the CLI claims it
-    before the algorithms run).
-    """
+def write_comparison(comp: Comparison, out: OutputFolder, info: dict) -> Path:
+    """Write table.csv, comparison.json, comparison.png and one image per algorithm into the claimed
+    output folder ``out`` (claim it before the algorithms run, so a bad destination fails first) and
+    commit it; return its path."""
     from pipeline_sim.output import write_json, write_png
     from reports.figures import figure_png
 
-    tmp = Path(folder)
+    tmp = out.staging
     comp.table.to_csv(tmp / "table.csv", index=False)
     write_json(tmp / "comparison.json", {**info, "identical_images": comp.identical,
                                           "differing": comp.differing, "paper_checks": comp.checks,
@@ -247,6 +245,7 @@ def write_comparison(comp: Comparison, folder: Path, info: dict) -> None:
         stem = f"image_{name.replace('+', '_').replace('/', '_')}"
         write_png(tmp / f"{stem}.png", img)
         np.save(tmp / f"{stem}.npy", img)
+    return out.commit()
 
 
 def format_table(table: pd.DataFrame) -> str:

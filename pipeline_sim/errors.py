@@ -14,6 +14,11 @@ class UserError(Exception):
     """
 
 
+class OutputError(Exception):
+    """Writing the outputs failed for a reason of the machine, not of the input (a full disk, a folder
+    made read-only during the run). The CLI prints it on one line and exits with status 1."""
+
+
 def did_you_mean(name: str, choices: Iterable[str]) -> str:
     """Return ``" (did you mean 'x'?)"`` for the closest choice, or ``""``."""
     close = difflib.get_close_matches(name, list(choices), n=1, cutoff=0.6)

@@ -17,7 +17,7 @@ import numpy as np
 import OpenEXR
 from PIL import Image
 
-from pipeline_sim.output_folder import ordinary_mode, staging_prefix
+from pipeline_sim.output_folder import hold_lock, ordinary_mode, staging_prefix
 
 
 def linear_to_srgb8(image: np.ndarray) -> np.ndarray:
@@ -74,6 +74,7 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
         mode = ordinary_mode(directory=False)
     fd, tmp = tempfile.mkstemp(prefix=staging_prefix(path.name), suffix=".tmp", dir=path.parent)
     try:
+        hold_lock(fd)   # while locked, no other process takes it for a killed writer's leftover
         os.fchmod(fd, mode)
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)

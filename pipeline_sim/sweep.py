@@ -85,7 +85,7 @@ import pandas as pd
 
 from pipeline_sim.errors import UserError, did_you_mean, unknown_key_error
 from pipeline_sim.output import atomic_write_text
-from pipeline_sim.output_folder import ANY_NAME, OutputFolder, check_writable_folder, clean_leftovers
+from pipeline_sim.output_folder import OutputFolder, check_writable_folder, clean_leftovers
 
 __all__ = [
     "SweepSpec", "load_sweep", "point_id", "run_point", "run_sweep", "SUMMARY_FIELDS", "HOST_TIMING_FIELDS",
@@ -682,20 +682,36 @@ def _folder_lock(out: Path) -> Iterator[None]:
 
 def _clean_leftovers(out: Path) -> None:
     """Remove the temporary files and folders killed processes left in the sweep folder."""
-    for folder in (out, out / "points", out / "records"):
-        clean_leftovers(folder, ANY_NAME)
+    for folder in (out, out / "points", out / "records", out / "reference"):
+        clean_leftovers(folder)
+
+
+#: What a sweep writes in its results folder (``--force`` replaces these in a folder of other files).
+SWEEP_NAMES = ("sweep.json", "points.csv", "results.csv", "points/", "records/", "reference/", ".sweep.lock")
+
+
+def _read_sweep_meta(out: Path) -> dict[str, Any] | None:
+    """The ``sweep.json`` this tool wrote in ``out``, or None if there is none (or it is not the tool's)."""
+    try:
+        doc = json.loads((out / "sweep.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError, UnicodeDecodeError):
+        return None
+    return doc if isinstance(doc, dict) and isinstance(doc.get("fingerprint"), dict) else None
 
 
 def _claim_folder(out: Path, force: bool) -> None:
     """Refuse a folder that holds something other than a sweep's results, unless ``force``; check it is writable."""
     if os.path.lexists(out) and not out.is_dir():
         raise UserError(f"--out {out}: exists and is not a folder; give a new, empty or sweep results folder")
-    if out.is_dir() and not force and not (out / "sweep.json").is_file():
-        foreign = sorted(e.name for e in out.iterdir())
+    if out.is_dir() and not force and _read_sweep_meta(out) is None:
+        try:
+            foreign = sorted(e.name for e in out.iterdir())
+        except OSError as exc:
+            raise UserError(f"--out {out}: cannot read it: {exc.strerror}") from None
         if foreign:
-            shown = ", ".join(foreign[:3]) + (", ..." if len(foreign) > 3 else "")
-            raise UserError(f"--out {out}: exists and does not hold a sweep's results ({shown}); give a new or "
-                            "empty folder, or add --force to write the sweep into it (nothing there is removed)")
+            raise UserError(f"--out {out}: exists and does not hold a sweep's results ({', '.join(foreign[:3])}"
+                            f"{', ...' if len(foreign) > 3 else ''}); give a new or empty folder, or add --force to "
+                            f"write the sweep into it ({', '.join(SWEEP_NAMES)} would be replaced, nothing else)")
     check_writable_folder(out, "--out")
 
 
@@ -703,16 +719,13 @@ def _prepare_folder(spec: SweepSpec, out: Path) -> None:
     """Check an existing folder holds the same sweep; write ``sweep.json``."""
     meta = out / "sweep.json"
     fp = _fingerprint(spec)
-    if meta.is_file():
-        try:
-            old = json.loads(meta.read_text()).get("fingerprint", {})
-        except (OSError, ValueError):
-            old = None
-        if old is not None:
-            changed = [k for k in fp if json.dumps(old.get(k), sort_keys=True) != json.dumps(fp[k], sort_keys=True)]
-            if changed:
-                raise UserError(f"{meta}: the folder holds results of a different sweep ({', '.join(changed)} "
-                                "changed); use another output folder or delete this one")
+    written = _read_sweep_meta(out)
+    if written is not None:
+        old = written["fingerprint"]
+        changed = [k for k in fp if json.dumps(old.get(k), sort_keys=True) != json.dumps(fp[k], sort_keys=True)]
+        if changed:
+            raise UserError(f"{meta}: the folder holds results of a different sweep ({', '.join(changed)} "
+                            "changed); use another output folder or delete this one")
     doc = {
         "sweep_file": str(spec.path),
         "spec": spec.to_dict(),

@@ -30,6 +30,7 @@ from __future__ import annotations
 import html
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -44,10 +45,13 @@ from reports import figures as F
 
 __all__ = ["Sweep", "load_sweep", "build_report", "select_images", "representative_point"]
 
-#: How the reports this module writes begin: what marks an existing file as this tool's own.
+#: How the reports this module writes begin: what marks an existing file as this tool's own
+#: (the generator tag in the head; reports from before it had the tool's name first in the title).
 GENERATOR_META = '<meta name="generator" content="pipeline-sim">'
-HTML_SIGNATURES = (GENERATOR_META, "<title>pipeline-sim")
-MARKDOWN_SIGNATURE = "# pipeline-sim"
+_IN_HEAD = r"<!doctype html>\s*<html[^>]*><head>(?:(?!</head>).)*"
+HTML_SIGNATURES = tuple(re.compile(_IN_HEAD + tail, re.IGNORECASE | re.DOTALL)
+                        for tail in (re.escape(GENERATOR_META), re.escape("<title>pipeline-sim sweep: ")))
+MARKDOWN_SIGNATURES = (re.compile(r"# pipeline-sim sweep: [^\n]*\n"),)
 
 #: Columns of points.csv that are not parameters.
 BASE_COLUMNS = ("point_id", "status", "error", "frame_cycles", "wall_time_s", "ops_total", "samples_tested",
@@ -585,7 +589,7 @@ def build_report(sweep_dir: str | Path, out_html: str | Path, *, metric: str = "
     out_md = out_html.with_suffix(".md")
     files_dir = out_html.parent / f"{out_html.stem}_files"
     check_output_file(out_html, HTML_SIGNATURES, force=force, option="-o")
-    check_output_file(out_md, (MARKDOWN_SIGNATURE,), force=force, option="-o")
+    check_output_file(out_md, MARKDOWN_SIGNATURES, force=force, option="-o")
     with OutputFolder(files_dir, "report figures", force=force, option="-o") as figures:
         doc = _document(sw, metric, cost)
         for f in doc.figures:

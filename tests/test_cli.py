@@ -360,3 +360,26 @@ def test_commands_in_shipped_files_are_real_commands(root):
         for key in ("scene", "sweep"):
             if getattr(args, key, None):
                 assert (root / getattr(args, key)).is_file(), f"{name}: {text}"
+
+
+@pytest.mark.parametrize("content", ["not json", "[1, 2]", '{"a": 1}'])
+def test_sweep_into_a_folder_with_a_foreign_sweep_json_is_refused(root, tmp_path, content):
+    out = tmp_path / "s"
+    out.mkdir()
+    (out / "sweep.json").write_text(content)
+    _one_line_error(_cli("sweep", root / "workloads/sweeps/quick.toml", "--out", out, "-q"), "sweep.json")
+    assert (out / "sweep.json").read_text() == content and [p.name for p in out.iterdir()] == ["sweep.json"]
+
+
+@pytest.mark.skipif(not _read_only_mount_available(), reason="needs unshare -m and mount (a small tmpfs)")
+def test_a_full_disk_is_one_line_and_leaves_nothing(small_scene, tmp_path):
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    cli = " ".join(shlex.quote(str(a)) for a in [sys.executable, "-m", "pipeline_sim", "run", small_scene, "--out",
+                                                 disk / "out", "-q"])
+    res = subprocess.run(["unshare", "-m", "sh", "-c", f"mount -t tmpfs -o size=64k tmpfs {shlex.quote(str(disk))} "
+                          f"&& {cli}; echo rc=$?; ls -A {shlex.quote(str(disk))}"], capture_output=True, text=True)
+    assert "rc=1" in res.stdout, res.stdout + res.stderr
+    err = res.stderr.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err and "No space left on device" in err, err
+    assert res.stdout.strip().endswith("rc=1")       # and the disk holds nothing afterwards

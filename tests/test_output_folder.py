@@ -43,8 +43,10 @@ def test_new_folder_is_created_with_a_marker(tmp_path):
     with OutputFolder(tmp_path / "a" / "b", "run") as out:
         target = _write_outputs(out, {"x.csv": "1"})
     assert _snapshot(tmp_path) == {"a/b/x.csv": "1", f"a/b/{MARKER}": (target / MARKER).read_text()}
-    assert json.loads((target / MARKER).read_text()) == {"written_by": "pipeline-sim", "kind": "run",
-                                                          "files": ["x.csv"]}
+    marker = json.loads((target / MARKER).read_text())
+    st = (target / "x.csv").stat()
+    assert marker == {"written_by": "pipeline-sim", "kind": "run", "files": {"x.csv": [st.st_size, st.st_mtime_ns]},
+                      "folders": []}
 
 
 def test_own_folder_is_replaced_whole(tmp_path):
@@ -150,20 +152,45 @@ def test_unwritable_location_fails_before_the_work(tmp_path):
     assert _snapshot(tmp_path) == {"file": "x"}
 
 
-def test_leftovers_of_dead_processes_are_cleaned_and_live_ones_kept(tmp_path):
-    dead, live = _dead_pid(), os.getpid()
+HOLD_LOCK = """
+import os, sys, time
+from pipeline_sim.output_folder import hold_lock
+os.mkdir(sys.argv[1])
+fd = os.open(sys.argv[1], os.O_RDONLY)
+hold_lock(fd)
+print("locked", flush=True)
+time.sleep(600)
+"""
+
+
+def test_leftovers_of_killed_writers_are_cleaned_and_live_ones_kept(tmp_path, root):
+    """A live writer (another process holding its staging folder locked) keeps it; a killed one's goes."""
+    dead = _dead_pid()
     killed = tmp_path / f".o.pipeline-sim-{dead}-abc_1.tmp"
     killed.mkdir()
     (killed / "image.npy").write_text("half")
-    running = tmp_path / f".o.pipeline-sim-{live}-abc_2.tmp"
-    running.mkdir()
-    other = tmp_path / f".other.pipeline-sim-{dead}-abc_3.tmp"   # another target's: not ours to judge here
-    other.mkdir()
+    own_past_life = tmp_path / f".o.pipeline-sim-{os.getpid()}-abc_4.tmp"   # a container's tool is always pid 1
+    own_past_life.mkdir()
+    killed_file = tmp_path / f".points.csv.pipeline-sim-{dead}-abc_5.tmp"
+    killed_file.write_text("half")
     unrelated = tmp_path / ".o.keep.tmp"
     unrelated.mkdir()
-    with OutputFolder(tmp_path / "o", "run") as out:
-        _write_outputs(out, {"x.csv": "1"})
-    assert not killed.exists() and running.is_dir() and other.is_dir() and unrelated.is_dir()
+    writer = subprocess.Popen([sys.executable, "-c", HOLD_LOCK, str(tmp_path / ".o.pipeline-sim-1-abc_2.tmp")],
+                              stdout=subprocess.PIPE, text=True, cwd=root, env={**os.environ, "PYTHONPATH": str(root)})
+    try:
+        assert writer.stdout.readline().strip() == "locked"
+        live = tmp_path / ".o.pipeline-sim-1-abc_2.tmp"
+        with OutputFolder(tmp_path / "o", "run") as out:
+            _write_outputs(out, {"x.csv": "1"})
+        assert not killed.exists() and not own_past_life.exists() and not killed_file.exists()
+        assert live.is_dir() and unrelated.is_dir()
+    finally:
+        writer.kill()
+        writer.wait()
+    # unlocked now, but named for a live process (pid 1) and young: perhaps a writer that has not locked it yet
+    assert clean_leftovers(tmp_path) == [] and live.is_dir()
+    os.utime(live, (0, 0))
+    assert clean_leftovers(tmp_path) == [live]
 
 
 def test_outputs_set_aside_by_a_killed_replacement_come_back(tmp_path):
@@ -172,7 +199,7 @@ def test_outputs_set_aside_by_a_killed_replacement_come_back(tmp_path):
     aside.mkdir()
     (aside / "previous").mkdir()
     (aside / "previous" / "x.csv").write_text("previous run")
-    assert clean_leftovers(tmp_path, "o") == [aside]
+    assert clean_leftovers(tmp_path) == [aside]
     assert _snapshot(tmp_path) == {"o/x.csv": "previous run"}
 
 
@@ -203,10 +230,12 @@ def test_atomic_write_keeps_an_existing_files_mode(tmp_path):
 
 
 def test_output_file_check(tmp_path):
+    import re
+
     mine, theirs = tmp_path / "mine.html", tmp_path / "theirs.html"
     mine.write_text('<html><head><meta name="generator" content="pipeline-sim">')
     theirs.write_text("<html>notes")
-    sig = ('<meta name="generator" content="pipeline-sim">',)
+    sig = (re.compile(r'<html><head><meta name="generator" content="pipeline-sim">'),)
     check_output_file(mine, sig, force=False, option="-o")
     with pytest.raises(UserError, match="not written by pipeline-sim"):
         check_output_file(theirs, sig, force=False, option="-o")
@@ -218,7 +247,21 @@ def test_output_file_check(tmp_path):
 # ---------------------------------------------------------------------------
 # the rules as a model, over random folder states
 
-NAMES = ["a.csv", "b.csv", "c.png", "notes.txt", "sub"]
+NAMES = ["a.csv", "b.csv", "figs/c.png", "figs/d.png", "notes.txt", "figs/notes.txt"]
+
+
+def _marker_for(target: Path, listed: list[str], changed: list[str]) -> str:
+    """A marker vouching for ``listed`` as they are now (or, for ``changed``, as they were before an edit)."""
+    files = {}
+    for rel in listed:
+        p = target / rel
+        if p.is_file():
+            st = p.stat()
+            files[rel] = [st.st_size + (1 if rel in changed else 0), st.st_mtime_ns]
+        else:
+            files[rel] = [1, 1]
+    folders = sorted({str(Path(r).parent) for r in listed if "/" in r})
+    return json.dumps({"written_by": "pipeline-sim", "kind": "run", "files": files, "folders": folders})
 
 
 @st.composite
@@ -226,32 +269,43 @@ def folder_states(draw):
     existing = draw(st.lists(st.sampled_from(NAMES), unique=True))
     marked = draw(st.booleans())
     listed = draw(st.lists(st.sampled_from(NAMES), unique=True)) if marked else []
-    written = draw(st.lists(st.sampled_from(NAMES[:3]), unique=True))
-    return existing, marked, listed, written, draw(st.booleans()), draw(st.booleans())
+    changed = draw(st.lists(st.sampled_from(existing), unique=True)) if existing else []
+    written = draw(st.lists(st.sampled_from(NAMES[:4]), unique=True))
+    return existing, marked, listed, changed, written, draw(st.booleans()), draw(st.booleans())
 
 
-@settings(max_examples=150)
+@settings(max_examples=200)
 @given(folder_states())
 def test_never_touches_what_it_did_not_write(tmp_path_factory, state):
-    existing, marked, listed, written, force, fail = state
+    """Whatever the folder holds (at any depth), the tool's marker, edits since, --force, or a failure:
+    a file the marker does not vouch for is never changed or removed, unless the tool writes that very path
+    when forced; and the tool's own unchanged earlier files that it does not write again are removed."""
+    existing, marked, listed, changed, written, force, fail = state
     root = tmp_path_factory.mktemp("model")
     target = root / "out"
     target.mkdir()
-    for name in existing:
-        (target / name).write_text(f"user {name}")
+    for rel in existing:
+        (target / rel).parent.mkdir(exist_ok=True)
+        (target / rel).write_text(f"user {rel}")
     if marked:
-        (target / MARKER).write_text(json.dumps({"written_by": "pipeline-sim", "kind": "run", "files": listed}))
+        (target / MARKER).write_text(_marker_for(target, listed, changed))
     before = _snapshot(root)
-    foreign = [n for n in existing if n not in listed]
+    ours = {r for r in existing if r in listed and r not in changed}
+    foreign = [r for r in existing if r not in ours]
+    if marked and "figs" in {str(Path(r).parent) for r in listed}:
+        pass
+    elif any(r.startswith("figs/") for r in existing):
+        foreign.append("figs")       # a folder the marker does not list is the user's
     try:
         with OutputFolder(target, "run", force=force) as out:
-            for name in written:
-                (out.staging / name).write_text(f"new {name}")
+            for rel in written:
+                (out.staging / rel).parent.mkdir(exist_ok=True)
+                (out.staging / rel).write_text(f"new {rel}")
             if fail:
                 raise RuntimeError
             out.commit()
     except UserError:
-        assert foreign and not force          # refused exactly when a foreign name is there and not forced
+        assert foreign and not force          # refused exactly when a foreign entry is there and not forced
         assert _snapshot(root) == before
         return
     except RuntimeError:
@@ -260,20 +314,119 @@ def test_never_touches_what_it_did_not_write(tmp_path_factory, state):
         return
     assert not foreign or force
     after = _snapshot(root)
-    for name in existing:
-        key = f"out/{name}"
-        if name in written:
-            assert after[key] == f"new {name}"
-        elif name in foreign:
-            assert after[key] == before[key]  # foreign and not rewritten: untouched
-        else:
+    for rel in existing:
+        key = f"out/{rel}"
+        if rel in written:
+            assert after[key] == f"new {rel}"
+        elif rel in ours:
             assert key not in after           # the tool's own stale output: gone
-    for name in written:
-        assert after[f"out/{name}"] == f"new {name}"
-    assert json.loads(after[f"out/{MARKER}"])["files"] == sorted(written)
+        else:
+            assert after[key] == before[key]  # the user's and not rewritten: untouched
+    for rel in written:
+        assert after[f"out/{rel}"] == f"new {rel}"
+    assert sorted(json.loads(after[f"out/{MARKER}"])["files"]) == sorted(written)
     assert sorted(p.name for p in root.iterdir()) == ["out"]   # nothing hidden left beside it
-    assert not [p for p in target.iterdir() if p.name.startswith(".") and p.name != MARKER]
+    assert not [p for p in target.rglob(".*") if p.name != MARKER]
 
 
 def test_staging_names_carry_the_pid():
     assert staging_prefix("out") == f".out.pipeline-sim-{os.getpid()}-"
+
+
+@pytest.mark.parametrize("names", [[".."], ["."], ["../victim"], ["/abs/path"], ["a/../../x"], [MARKER]])
+def test_a_marker_naming_anything_outside_its_folder_is_not_the_tools(tmp_path, monkeypatch, names):
+    """A crafted or corrupted marker cannot make the tool remove anything: the folder is then simply foreign."""
+    work = tmp_path / "work"
+    work.mkdir()
+    (tmp_path / "victim").write_text("outside")
+    (work / "notes.txt").write_text("mine")
+    (work / MARKER).write_text(json.dumps({"written_by": "pipeline-sim", "kind": "run", "folders": [],
+                                           "files": {n: [1, 1] for n in names}}))
+    monkeypatch.chdir(work)
+    with pytest.raises(UserError, match="not written by pipeline-sim"):
+        OutputFolder(".", "run")
+    with OutputFolder(".", "run", force=True) as out:
+        _write_outputs(out, {"x.csv": "1"})
+    assert (tmp_path / "victim").read_text() == "outside" and (work / "notes.txt").read_text() == "mine"
+
+
+def test_a_file_added_while_the_job_runs_is_kept(tmp_path):
+    with OutputFolder(tmp_path / "o", "run") as out:
+        _write_outputs(out, {"x.csv": "1", "stale.csv": "s"})
+    with OutputFolder(tmp_path / "o", "run") as out:       # claimed: the folder is the tool's
+        (tmp_path / "o" / "notes.txt").write_text("written during the run")
+        (tmp_path / "o" / "x.csv").write_text("edited during the run")
+        _write_outputs(out, {"x.csv": "2"})
+    assert (tmp_path / "o" / "notes.txt").read_text() == "written during the run"
+    assert (tmp_path / "o" / "x.csv").read_text() == "2"      # the output of the same name lands
+    assert not (tmp_path / "o" / "stale.csv").exists()        # the tool's own, unchanged: removed
+    # a folder that did not exist at the claim but does at the commit, with a file in it
+    with OutputFolder(tmp_path / "p", "run") as out:
+        (tmp_path / "p").mkdir()
+        (tmp_path / "p" / "notes.txt").write_text("mine")
+        _write_outputs(out, {"x.csv": "1"})
+    assert sorted(p.name for p in (tmp_path / "p").iterdir()) == [MARKER, "notes.txt", "x.csv"]
+
+
+def test_a_file_inside_the_tools_subfolder_is_kept(tmp_path):
+    with OutputFolder(tmp_path / "o", "run") as out:
+        (out.staging / "report_files").mkdir()
+        (out.staging / "report_files" / "a.png").write_text("a")
+        out.commit()
+    (tmp_path / "o" / "report_files" / "notes.txt").write_text("mine")
+    with pytest.raises(UserError, match="report_files/notes.txt"):
+        OutputFolder(tmp_path / "o", "run")
+    (tmp_path / "o" / "report_files" / "notes.txt").unlink()
+    (tmp_path / "o" / "report_files" / "a.png").write_text("annotated by hand")   # an edited output is the user's
+    with pytest.raises(UserError, match="report_files/a.png"):
+        OutputFolder(tmp_path / "o", "run")
+
+
+def test_another_kind_of_output_is_refused_unless_forced(tmp_path):
+    with OutputFolder(tmp_path / "o", "sweep point") as out:
+        _write_outputs(out, {"run.json": "{}"})
+    with pytest.raises(UserError, match="outputs of a sweep point"):
+        OutputFolder(tmp_path / "o", "run")
+    with OutputFolder(tmp_path / "o", "run", force=True) as out:
+        _write_outputs(out, {"run.json": "[]"})
+    assert (tmp_path / "o" / "run.json").read_text() == "[]"
+
+
+def test_a_replaced_folder_keeps_its_mode_and_a_setgid_parent_its_group_bit(tmp_path):
+    with OutputFolder(tmp_path / "o", "run") as out:
+        _write_outputs(out, {"x.csv": "1"})
+    os.chmod(tmp_path / "o", 0o700)
+    with OutputFolder(tmp_path / "o", "run") as out:
+        _write_outputs(out, {"x.csv": "2"})
+    assert stat.S_IMODE((tmp_path / "o").stat().st_mode) == 0o700
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    os.chmod(shared, 0o2775)
+    with OutputFolder(shared / "run", "run") as out:
+        _write_outputs(out, {"x.csv": "1"})
+    assert (shared / "run").stat().st_mode & stat.S_ISGID
+
+
+def test_a_folder_that_cannot_be_swapped_is_written_in_place(tmp_path, monkeypatch):
+    """A mount point (or a folder on another file system) cannot be renamed away: the outputs go in."""
+    import pipeline_sim.output_folder as of
+
+    target = tmp_path / "mnt"
+    with OutputFolder(target, "run") as out:
+        _write_outputs(out, {"x.csv": "1", "stale.csv": "s"})
+    monkeypatch.setattr(of.os.path, "ismount", lambda p: Path(p) == target)
+    out = OutputFolder(target, "run")
+    assert out.merge and out.staging.parent == target
+    with out:
+        _write_outputs(out, {"x.csv": "2"})
+    assert sorted(p.name for p in target.iterdir()) == [MARKER, "x.csv"] and (target / "x.csv").read_text() == "2"
+    assert [p.name for p in tmp_path.iterdir()] == ["mnt"]
+
+
+def test_a_killed_sweep_points_set_aside_outputs_come_back(tmp_path):
+    points = tmp_path / "points"
+    aside = points / f".ab12.pipeline-sim-{_dead_pid()}-x_1.old"
+    (aside / "previous").mkdir(parents=True)
+    (aside / "previous" / "run.json").write_text("{}")
+    clean_leftovers(points)
+    assert _snapshot(tmp_path) == {"points/ab12/run.json": "{}"}

@@ -218,13 +218,14 @@ def test_sweep_report_structure(sweep_dir, tmp_path):
         assert (out.parent / link).read_bytes().startswith(PNG_SIGNATURE)
     marker = json.loads((files / MARKER).read_text())
     assert sorted(f.name for f in files.iterdir() if f.name != MARKER) == sorted(Path(link).name for link in links)
-    assert marker["files"] == sorted(Path(link).name for link in links)
+    assert sorted(marker["files"]) == sorted(Path(link).name for link in links)
     assert "deadbeef" in mtext
     # no temporary files are left behind
     assert sorted(x.name for x in out.parent.iterdir()) == ["report.html", "report.md", "report_files"]
     # writing the report again replaces the figure folder whole: a figure that is gone goes with it
     (files / "old_figure.png").write_bytes(PNG_SIGNATURE)
-    marker["files"].append("old_figure.png")
+    st = (files / "old_figure.png").stat()
+    marker["files"]["old_figure.png"] = [st.st_size, st.st_mtime_ns]
     (files / MARKER).write_text(json.dumps(marker))
     build_report(sweep_dir, out)
     assert not (files / "old_figure.png").exists()
@@ -233,7 +234,7 @@ def test_sweep_report_structure(sweep_dir, tmp_path):
 
 def test_sweep_report_never_replaces_what_it_did_not_write(sweep_dir, tmp_path):
     """An existing report.html, report.md or report_files/ that pipeline-sim did not write is refused."""
-    for name, content in (("r.html", "<html>my notes</html>"), ("r.md", "# my notes\n")):
+    for name, content in (("r.html", "<html>my notes</html>"), ("r.md", "# My project\n## pipeline-sim sweep: notes\n")):
         path = tmp_path / name
         path.write_text(content)
         with pytest.raises(UserError, match="not written by pipeline-sim"):
