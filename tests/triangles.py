@@ -22,10 +22,15 @@ PERSPECTIVE = (1.0202020202020203, -0.20202020202020202)
 
 
 @st.composite
-def moving_triangle(draw, *, lens=True, motion=True, allow_w_cross=True, scale=1.0, perspective=False):
+def moving_triangle(draw, *, lens=True, motion=True, allow_w_cross=True, scale=1.0, perspective=False,
+                    view_rays=False):
     """A triangle as (q, r, lens_x, lens_y), each (1,3,...) float64 clip space.
 
-    With ``perspective`` every vertex has z = C1 w + C0 (PERSPECTIVE)."""
+    With ``perspective`` every vertex has z = C1 w + C0 (PERSPECTIVE). With
+    ``view_rays`` (and ``motion``) one to three vertices move along their view
+    rays: the vertex at t=1 is the one at t=0 times a positive factor, fixed on
+    the screen and moving in depth, so its two projections differ only by
+    rounding (near-coincident points, edges of rounding-noise direction)."""
     wlo = -1.0 if allow_w_cross else 0.2
     q = np.zeros((1, 3, 4))
     r = np.zeros((1, 3, 4))
@@ -46,6 +51,11 @@ def moving_triangle(draw, *, lens=True, motion=True, allow_w_cross=True, scale=1
         r = q + d
         if perspective:
             r[0, :, 2] = PERSPECTIVE[0] * r[0, :, 3] + PERSPECTIVE[1]
+    if view_rays and motion:
+        for k in sorted(draw(st.sets(st.integers(0, 2), min_size=1))):
+            r[0, k] = q[0, k] * draw(finite(0.25, 4.0))
+            if perspective:
+                r[0, k, 2] = PERSPECTIVE[0] * r[0, k, 3] + PERSPECTIVE[1]
     lx = np.zeros((1, 3, 2))
     ly = np.zeros((1, 3, 2))
     if lens:

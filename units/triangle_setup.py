@@ -86,6 +86,7 @@ class TriangleTable:
     plane_d: np.ndarray  # (N,2,2,2) [normal, side (+ below / - above), (d0, v)] moving planes
     hull: np.ndarray  # (N,6,2) screen convex hull of the moving vertices, counter-clockwise (hull algorithm)
     hull_n: np.ndarray  # (N,) int32 its vertex count; 0 when not computed
+    hull_off: np.ndarray  # (N,6) support offset of each hull edge (units.tile_test_hull)
 
     @classmethod
     def allocate(cls, n: int) -> "TriangleTable":
@@ -101,7 +102,7 @@ class TriangleTable:
             edge_g=np.zeros((n, 3, 3), f64), edge_fg=np.zeros((n, 3, 3), f64), edge_abs=np.zeros((n, 3, 3), f64),
             ref=np.zeros((n, 3, 3), f32), edge_eps=np.zeros(n, f32),
             plane_n=np.zeros((n, 2, 3), f64), plane_d=np.zeros((n, 2, 2, 2), f64),
-            hull=np.zeros((n, 6, 2), f64), hull_n=np.zeros(n, np.int32),
+            hull=np.zeros((n, 6, 2), f64), hull_n=np.zeros(n, np.int32), hull_off=np.zeros((n, 6), f64),
         )
 
 
@@ -518,14 +519,14 @@ class TriangleSetup:
         self.last_status = status
         kept = ids[status == ST_OK]
         if self.hull:
-            _hulls(kept, t.p0, t.dp, t.t_span, t.flags, t.hull, t.hull_n, ops)
+            _hulls(kept, t.p0, t.dp, t.t_span, t.flags, t.hull, t.hull_n, t.hull_off, ops)
         return kept, ops, events
 
 
 @nb.njit(cache=True)
-def _hulls(ids, p0, dp, t_span, flags, hull, hull_n, ops):
+def _hulls(ids, p0, dp, t_span, flags, hull, hull_n, hull_off, ops):
     """Convex hulls of the six projected vertices of the motion-only triangles
     in front of the camera (McGuire et al. 2010, 001 §3.2)."""
     for tri in ids:
         if (flags[tri] & FLAG_WPOS) != 0 and (flags[tri] & FLAG_LENS) == 0:
-            hull_setup(p0, dp, t_span, tri, hull, hull_n, ops)
+            hull_setup(p0, dp, t_span, tri, hull, hull_n, hull_off, ops)
