@@ -20,6 +20,14 @@ def finite(lo, hi):
 # z/w = C1 + C0 / w of a perspective projection with near 0.1 and far 10
 PERSPECTIVE = (1.0202020202020203, -0.20202020202020202)
 
+# A vertex moving along its own view ray (clip coordinates times a positive
+# factor) stays fixed on the screen: its two projections differ only by
+# rounding. Here the first vertex does, by 1.4, the other two move; on a
+# 16x16 screen with 4-px tiles its ~1e-15 px hull edge once made the hull
+# test reject tile (0, 1), which holds covered samples.
+VIEW_RAY_Q = np.array([[[-1.7, 1.4, 0.0, 1.5], [0.5, -1.9, 0.0, 1.1], [0.4, 1.1, 0.0, 2.1]]])
+VIEW_RAY_R = np.array([[1.4 * VIEW_RAY_Q[0, 0], [0.6, -1.9, 0.0, 1.7], [0.9, 0.2, 0.0, 1.7]]])
+
 
 @st.composite
 def moving_triangle(draw, *, lens=True, motion=True, allow_w_cross=True, scale=1.0, perspective=False,
