@@ -142,8 +142,8 @@ def _interval_hull_nonneg(a, b, lo, hi):
 @nb.njit(cache=True, inline="always")
 def _homogeneous_scale(q, r, lens_x, lens_y, tri):
     """The power of two 2^-e that brings the largest |clip coordinate| or |lens
-    shift| of ``tri`` into [0.5, 1); 1 when they are all zero or one is not
-    finite. (Capped at 2^1023 so it stays finite: only coordinates below
+    shift| of ``tri`` into [0.5, 1); 1 when they are all zero or the largest
+    is not finite. (Capped at 2^1023 so it stays finite: only coordinates below
     2^-1024, float64 subnormals, would need more.)"""
     m = 0.0
     for k in range(3):
