@@ -94,6 +94,22 @@ def test_every_algorithm_conservative_defocus_only(tri, seed, algorithm, tile_si
     assert_conservative(*tri, seed, tile_size=tile_size, algorithm=algorithm)
 
 
+# every tile-test algorithm with its edge solvers
+EVERY = [("hierarchical", "linearized"), ("hierarchical", "quadratic")] + [(a, "linearized") for a in ALGORITHMS]
+
+
+@given(moving_triangle(lens=False, view_rays=True), st.integers(0, 2**31), st.sampled_from(EVERY),
+       st.sampled_from([1, 4, 8]))
+def test_every_algorithm_conservative_view_rays(tri, seed, algorithm, tile_size):
+    """Vertices moving along their view rays: each one's two projections differ by rounding only."""
+    assert_conservative(*tri, seed, tile_size=tile_size, algorithm=algorithm[0], edge_solver=algorithm[1])
+
+
+@given(moving_triangle(view_rays=True), st.integers(0, 2**31), st.sampled_from(EVERY), st.sampled_from([1, 8]))
+def test_every_algorithm_conservative_view_rays_5d(tri, seed, algorithm, tile_size):
+    assert_conservative(*tri, seed, tile_size=tile_size, algorithm=algorithm[0], edge_solver=algorithm[1])
+
+
 @given(moving_triangle(lens=False), st.integers(0, 2**31), st.sampled_from([1, 4, 8]),
        st.sampled_from([1, 2]))
 def test_quadratic_edge_solver_conservative(tri, seed, tile_size, coarse):

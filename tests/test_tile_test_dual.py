@@ -179,6 +179,14 @@ def test_bounds_conservative_motion_only(tri, q):
     check(tb, *random_query(np.random.default_rng(seed), tb, lens_kind, time_kind, size), seed)
 
 
+@given(moving_triangle(lens=True, motion=True, allow_w_cross=False, view_rays=True), query)
+def test_bounds_conservative_view_rays(tri, q):
+    """Vertices moving along their view rays (fixed on screen, moving in depth)."""
+    seed, lens_kind, time_kind, size = q
+    tb = table_from_clip(*tri)
+    check(tb, *random_query(np.random.default_rng(seed), tb, lens_kind, time_kind, size), seed)
+
+
 # ---- adversarial cases (clip space q, r and lens shifts at t=0, t=1) ------------------------------------
 _Q = np.array([[[-0.5, -0.4, 0.0, 1.0], [0.6, -0.3, 0.0, 1.2], [0.0, 0.6, 0.0, 0.9]]])
 

@@ -43,6 +43,12 @@ def test_interleave_masks_conservative_motion_only(tri, seed):
     assert_masks_conservative(*tri, seed, 64, 2)
 
 
+@given(moving_triangle(view_rays=True), st.integers(0, 2**31), st.sampled_from([4, 64]), st.sampled_from([1, 8]))
+def test_interleave_masks_conservative_view_rays(tri, seed, n_tuples, tile_size):
+    """Vertices moving along their view rays (fixed on screen, moving in depth)."""
+    assert_masks_conservative(*tri, seed, n_tuples, tile_size)
+
+
 def test_interleave_mask_is_tight_for_a_fast_small_triangle():
     """A small triangle crossing the screen: each tile sees only the few tuples
     whose times put the triangle over it (brute force: its 2D bounds per tuple)."""

@@ -287,6 +287,18 @@ def covered32(tb, x, y, t):
 
 @given(moving_triangle(lens=False, allow_w_cross=False), st.integers(0, 2**31), st.sampled_from([1, 4, 8, 16]))
 def test_conservative_real_moving_triangles(tri, seed, ts):
+    assert_conservative_real(tri, seed, ts)
+
+
+@given(moving_triangle(lens=False, allow_w_cross=False, view_rays=True), st.integers(0, 2**31),
+       st.sampled_from([1, 4, 8, 16]))
+def test_conservative_real_view_ray_triangles(tri, seed, ts):
+    """Vertices moving along their view rays (fixed on screen, moving in depth)."""
+    assert_conservative_real(tri, seed, ts)
+
+
+def assert_conservative_real(tri, seed, ts):
+    """Covered samples in their tile's interval; no grid point covered just outside it."""
     q, r, _, _ = tri
     setup, alive = setup_one(q, r)
     tb = setup.table

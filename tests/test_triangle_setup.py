@@ -21,12 +21,20 @@ def run_setup(q, r, lx=None, ly=None, backface_culling=False, tile_size=8):
     return setup, alive, events
 
 
+def homogeneous_scale(q, r, lx, ly):
+    """Per triangle, the power of two setup scales its homogeneous coordinates by:
+    the one that brings the largest |clip coordinate| or |lens shift| into [0.5, 1)."""
+    m = np.max(np.abs(np.concatenate([a.reshape(len(q), -1) for a in (q, r, lx, ly)], axis=1)), axis=1)
+    return np.ldexp(1.0, -np.frexp(m)[1])
+
+
 def pixel_vertices(q, r, lx, ly, t, u, v):
-    """Pixel-space 2DH (X, Y, W) per vertex at (t, u, v), row 0 at the top."""
+    """Pixel-space 2DH (X, Y, W) per vertex at (t, u, v), row 0 at the top, in
+    the units setup stores them in (times ``homogeneous_scale``)."""
     p = (1 - t) * q + t * r
     X = (p[..., 0] + u * ((1 - t) * lx[..., 0] + t * lx[..., 1]) + p[..., 3]) * W / 2
     Y = (p[..., 3] - p[..., 1] - v * ((1 - t) * ly[..., 0] + t * ly[..., 1])) * H / 2
-    return np.stack([X, Y, p[..., 3]], axis=-1)
+    return np.stack([X, Y, p[..., 3]], axis=-1) * homogeneous_scale(q, r, lx, ly)[:, None, None]
 
 
 def test_pixel_space_transform_matches_formula():
@@ -34,14 +42,21 @@ def test_pixel_space_transform_matches_formula():
     q = rng.uniform(-1, 1, (20, 3, 4))
     q[..., 3] = rng.uniform(0.5, 2, (20, 3))
     r = q + rng.uniform(-0.2, 0.2, q.shape)
+    q[:5] *= 1e-20  # the same triangles at other scales: stored alike, up to a power of two
+    r[:5] *= 1e-20
+    q[5:10] *= 3e17
+    r[5:10] *= 3e17
     setup, _, _ = run_setup(q, r)
     tb = setup.table
+    sc = homogeneous_scale(q, r, np.zeros((20, 3, 2)), np.zeros((20, 3, 2)))[:, None]
+    assert np.all((sc[:5] > 2.0**60) & (sc[5:10] < 2.0**-55))
     for s, arr in enumerate((q, r)):
-        X = (arr[..., 0] + arr[..., 3]) * W / 2
-        Y = (arr[..., 3] - arr[..., 1]) * H / 2
+        X = (arr[..., 0] + arr[..., 3]) * W / 2 * sc
+        Y = (arr[..., 3] - arr[..., 1]) * H / 2 * sc
         np.testing.assert_allclose(tb.p0[..., 0] + s * tb.dp[..., 0], X, rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(tb.p0[..., 1] + s * tb.dp[..., 1], Y, rtol=1e-12, atol=1e-12)
-        np.testing.assert_allclose(tb.p0[..., 3] + s * tb.dp[..., 3], arr[..., 3], rtol=1e-12)
+        np.testing.assert_allclose(tb.p0[..., 3] + s * tb.dp[..., 3], arr[..., 3] * sc, rtol=1e-12)
+        np.testing.assert_allclose(tb.p0[..., 2] + s * tb.dp[..., 2], arr[..., 2] * sc, rtol=1e-12, atol=1e-12)
     np.testing.assert_array_equal(tb.p0_32, tb.p0.astype(np.float32))
 
 

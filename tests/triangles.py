@@ -20,12 +20,25 @@ def finite(lo, hi):
 # z/w = C1 + C0 / w of a perspective projection with near 0.1 and far 10
 PERSPECTIVE = (1.0202020202020203, -0.20202020202020202)
 
+# A vertex moving along its own view ray (clip coordinates times a positive
+# factor) stays fixed on the screen: its two projections differ only by
+# rounding. Here the first vertex does, by 1.4, the other two move; on a
+# 16x16 screen with 4-px tiles its ~1e-15 px hull edge once made the hull
+# test reject tile (0, 1), which holds covered samples.
+VIEW_RAY_Q = np.array([[[-1.7, 1.4, 0.0, 1.5], [0.5, -1.9, 0.0, 1.1], [0.4, 1.1, 0.0, 2.1]]])
+VIEW_RAY_R = np.array([[1.4 * VIEW_RAY_Q[0, 0], [0.6, -1.9, 0.0, 1.7], [0.9, 0.2, 0.0, 1.7]]])
+
 
 @st.composite
-def moving_triangle(draw, *, lens=True, motion=True, allow_w_cross=True, scale=1.0, perspective=False):
+def moving_triangle(draw, *, lens=True, motion=True, allow_w_cross=True, scale=1.0, perspective=False,
+                    view_rays=False):
     """A triangle as (q, r, lens_x, lens_y), each (1,3,...) float64 clip space.
 
-    With ``perspective`` every vertex has z = C1 w + C0 (PERSPECTIVE)."""
+    With ``perspective`` every vertex has z = C1 w + C0 (PERSPECTIVE). With
+    ``view_rays`` (and ``motion``) one to three vertices move along their view
+    rays: the vertex at t=1 is the one at t=0 times a positive factor, fixed on
+    the screen and moving in depth, so its two projections differ only by
+    rounding (near-coincident points, edges of rounding-noise direction)."""
     wlo = -1.0 if allow_w_cross else 0.2
     q = np.zeros((1, 3, 4))
     r = np.zeros((1, 3, 4))
@@ -46,6 +59,11 @@ def moving_triangle(draw, *, lens=True, motion=True, allow_w_cross=True, scale=1
         r = q + d
         if perspective:
             r[0, :, 2] = PERSPECTIVE[0] * r[0, :, 3] + PERSPECTIVE[1]
+    if view_rays and motion:
+        for k in sorted(draw(st.sets(st.integers(0, 2), min_size=1))):
+            r[0, k] = q[0, k] * draw(finite(0.25, 4.0))
+            if perspective:
+                r[0, k, 2] = PERSPECTIVE[0] * r[0, k, 3] + PERSPECTIVE[1]
     lx = np.zeros((1, 3, 2))
     ly = np.zeros((1, 3, 2))
     if lens:

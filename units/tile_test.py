@@ -312,7 +312,7 @@ def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, algorith
                      gamma_per_tile, lens_bounds, clips,
                      p0, dp, l0, dl, t_span, flags, edge_f, edge_h, edge_gamma, edge_g, edge_fg, edge_abs, plane_n,
                      plane_d,
-                     hull, hull_n, tuples, depth_c1, depth_c0,
+                     hull, hull_n, hull_off, tuples, depth_c1, depth_c0,
                      out_keep, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, lines, mask, ops, events):
     """Test each (triangle, tile) record; fill its intervals and ``out_keep``.
 
@@ -366,7 +366,7 @@ def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, algorith
                 for k in range(hull_n[tri]):
                     mag = max(mag, abs(hull[tri, k, 0]) + abs(hull[tri, k, 1]))
                 pad = F32_REL * mag
-                if not hull_overlaps_tile(hull, hull_n, tri, x0 - pad, x1 + pad, y0 - pad, y1 + pad, ops):
+                if not hull_overlaps_tile(hull, hull_n, hull_off, tri, x0 - pad, x1 + pad, y0 - pad, y1 + pad, ops):
                     events[EV_REJ_HULL] += 1
                     continue
         elif algorithm == ALG_INTERLEAVE:
@@ -494,8 +494,8 @@ class TileTest:
                          self.algorithm, cfg.edge_test, cfg.edge_solver == "quadratic", cfg.gamma == "tile",
                          cfg.lens_bounds, cfg.clips,
                          t.p0, t.dp, t.l0, t.dl, t.t_span, t.flags, t.edge_f, t.edge_h, t.edge_gamma, t.edge_g,
-                         t.edge_fg, t.edge_abs, t.plane_n, t.plane_d, t.hull, t.hull_n, self.tuples, self.depth_c1,
-                         self.depth_c0, keep,
+                         t.edge_fg, t.edge_abs, t.plane_n, t.plane_d, t.hull, t.hull_n, t.hull_off, self.tuples,
+                         self.depth_c1, self.depth_c0, keep,
                          iv["t_lo"], iv["t_hi"], iv["u_lo"], iv["u_hi"], iv["v_lo"], iv["v_hi"],
                          iv["z_lo"], iv["z_hi"], lines if len(lines) else np.empty((n, 8)),
                          mask if len(mask) else np.zeros(n, np.uint64), ops, events)

@@ -16,6 +16,25 @@ separating-axis test of the hull against a tile rectangle. The caller must
 use them only for triangles with w > 0 on the whole span (FLAG_WPOS) and no
 lens.
 
+Rounding. The hull only proposes the separating axes; each axis carries
+what makes it valid. For hull edge a -> b with outward normal n,
+``hull_setup`` stores the support offset off = max over the six points p
+of n . (p - a). Whatever n is, all six points, and so the triangle at
+every t of the span, lie in the half-plane n . (p - a) <= off: the test is
+right even where rounding misled the hull construction, and it can. A
+vertex moving along its own view ray (clip coordinates times a positive
+factor) stays fixed on the screen; its two projections differ by float64
+rounding only, ~1e-15 px. A turn o -> a -> b is judged by the sign of a
+cross product whose true value is |a - o| |b - a| sin(turn) and whose
+rounding error is up to ~2^-52 |a - o| |b - o|: with |b - a| at rounding
+size any turn can be misjudged, the monotone chain keeps a reflex vertex,
+and the edge of ~1e-15 px beside it points anywhere. With off = 0 its
+normal separated tiles holding covered samples; with its offset it is a
+valid, if useless, axis. For a correct hull off is 0 up to rounding. What
+remains is the rounding of the projected points and of the test's own
+arithmetic, a few float64 ulps of the magnitudes involved (the test counts
+the largest hull coordinate among them), far inside its margins.
+
 "Counter-clockwise" is the positive orientation in the (x, y) coordinates as
 stored (positive shoelace area); pixel space has row 0 at the top, so on the
 screen the order appears clockwise.
@@ -44,14 +63,16 @@ def _cross(ox, oy, ax, ay, bx, by):
 
 
 @nb.njit(cache=True)
-def hull_setup(p0, dp, t_span, tri, hull, hull_n, ops):
+def hull_setup(p0, dp, t_span, tri, hull, hull_n, hull_off, ops):
     """Convex hull of the six screen positions of ``tri`` (Wu13 §3.2, McGuire10).
 
     Vertices at ts and te (``t_span[tri]``), projected to (X/W, Y/W); needs
     W > 0 on the span. Writes the hull counter-clockwise (positive signed
     area) to ``hull[tri, :hull_n[tri]]`` with collinear points dropped;
     degenerate input stores the two extreme points (all six on a line) or
-    one point (all identical).
+    one point (all identical). ``hull_off[tri, i]`` is the support offset of
+    edge i (from vertex i to the next): how far the six points reach beyond
+    its line along its outward normal (module doc), 0 for an exact hull.
     """
     px = np.empty(HULL_MAX)
     py = np.empty(HULL_MAX)
@@ -138,16 +159,32 @@ def hull_setup(p0, dp, t_span, tri, hull, hull_n, ops):
         hull[tri, i, 0] = cx[i]
         hull[tri, i, 1] = cy[i]
     hull_n[tri] = n
+    # support offsets: the edge's own end points give exactly 0, so off >= 0
+    for i in range(n):
+        j = i + 1 if i + 1 < n else 0
+        nx = cy[j] - cy[i]
+        ny = cx[i] - cx[j]
+        off = 0.0
+        for k in range(m):
+            off = max(off, nx * (sx[k] - cx[i]) + ny * (sy[k] - cy[i]))
+        hull_off[tri, i] = off
+    ops[OP_ADD] += n * (2 + 2 * m)
+    ops[OP_MUL] += n * m
+    ops[OP_MADD] += n * m
+    ops[OP_CMP] += n * m
 
 
 @nb.njit(cache=True)
-def hull_overlaps_tile(hull, hull_n, tri, x0, x1, y0, y1, ops):
+def hull_overlaps_tile(hull, hull_n, hull_off, tri, x0, x1, y0, y1, ops):
     """Does the hull of ``tri`` (Wu13 §3.2, McGuire10) overlap [x0, x1] x [y0, y1]?
 
     Separating-axis test: the tile's two axes, then each hull edge's outward
-    normal (for a two-point hull, both normals of the segment; a one-point
-    hull needs only the tile axes). Conservative: a separation counts only
-    beyond HULL_REL times the magnitudes involved plus HULL_ABS_PX pixels.
+    normal n with the edge's support offset (for a two-point hull, both
+    normals of the segment; a one-point hull needs only the tile axes): the
+    tile is separated when n . (c - a) > off at its corner c farthest
+    against n. Conservative: a separation counts only beyond HULL_REL times
+    the magnitudes involved (those of the hull's points included, module
+    doc) plus HULL_ABS_PX pixels.
     """
     n = hull_n[tri]
     hx0 = np.inf
@@ -173,6 +210,8 @@ def hull_overlaps_tile(hull, hull_n, tri, x0, x1, y0, y1, ops):
         return False
     if n < 2:
         return True
+    big = max(max(abs(hx0), abs(hx1)), max(abs(hy0), abs(hy1)))  # the largest coordinate of the points
+    ops[OP_CMP] += 3
     for i in range(n):
         j = i + 1 if i + 1 < n else 0
         ax = hull[tri, i, 0]
@@ -183,12 +222,13 @@ def hull_overlaps_tile(hull, hull_n, tri, x0, x1, y0, y1, ops):
         # the tile corner farthest against the normal
         cx = x0 if nx > 0.0 else x1
         cy = y0 if ny > 0.0 else y1
-        d = nx * (cx - ax) + ny * (cy - ay)
-        mag = abs(nx) * (abs(cx) + abs(ax)) + abs(ny) * (abs(cy) + abs(ay))
-        eps = HULL_REL * mag + HULL_ABS_PX * (abs(nx) + abs(ny))  # L1 >= L2 norm: wider in pixels
-        ops[OP_ADD] += 7
+        d = nx * (cx - ax) + ny * (cy - ay) - hull_off[tri, i]
+        nl1 = abs(nx) + abs(ny)  # L1 >= L2 norm: wider in pixels
+        mag = abs(nx) * (abs(cx) + abs(ax)) + abs(ny) * (abs(cy) + abs(ay)) + nl1 * big
+        eps = HULL_REL * mag + HULL_ABS_PX * nl1
+        ops[OP_ADD] += 8
         ops[OP_MUL] += 2
-        ops[OP_MADD] += 3
+        ops[OP_MADD] += 4
         ops[OP_CMP] += 3
         if d > eps:
             return False

@@ -2,6 +2,19 @@
 
 Implements docs/pipeline.md §2.1. For each triangle of a batch:
 
+* homogeneous normalisation: clip coordinates are homogeneous, so a
+  triangle's (x, y, z, w) at t=0 and t=1 and its lens shifts (a shift of x
+  and y) may all be multiplied by one positive factor without changing the
+  triangle. Setup divides them by the power of two 2^e that brings the
+  largest magnitude among them into [0.5, 1): exact in floating point (the
+  same bits, only the exponent changes), so every later value is the
+  unnormalised one times a power of two, and products of two or three
+  coordinates (edge functions, the determinant) neither overflow nor
+  underflow in the sample tester's float32 for triangles written at any
+  scale. Depth is a ratio (z/w) and unaffected; the moving-plane bounds on w
+  are scaled back (``plane_d``), since the draw's depth_w relation takes w
+  in the draw's units. A power-of-two scale is an exponent adjustment and
+  no float operation: it is not counted;
 * clip-space vertices at t=0 and t=1 to pixel-space 2D homogeneous
   coordinates (X, Y, W) with row 0 at the top, pixel centres at +0.5, and the
   per-vertex lens shift (circle of confusion, linear in w; Wu13 §3.1);
@@ -23,6 +36,7 @@ Implements docs/pipeline.md §2.1. For each triangle of a batch:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numba as nb
@@ -56,7 +70,9 @@ class TriangleTable:
 
     Pixel-space 2DH vertices: ``p0`` (N,3,4) holds (X, Y, Z, W) at t=0 and
     ``dp`` the change to t=1; ``l0``/``dl`` (N,3,2) the lens shift (LX, LY)
-    at t=0 and its change. ``*32`` are float32 copies for the sample tester.
+    at t=0 and its change; all of a triangle's homogeneously normalised (its
+    clip coordinates divided by a power of two, module doc). ``*32`` are
+    float32 copies for the sample tester.
     """
 
     p0: np.ndarray
@@ -86,6 +102,7 @@ class TriangleTable:
     plane_d: np.ndarray  # (N,2,2,2) [normal, side (+ below / - above), (d0, v)] moving planes
     hull: np.ndarray  # (N,6,2) screen convex hull of the moving vertices, counter-clockwise (hull algorithm)
     hull_n: np.ndarray  # (N,) int32 its vertex count; 0 when not computed
+    hull_off: np.ndarray  # (N,6) support offset of each hull edge (units.tile_test_hull)
 
     @classmethod
     def allocate(cls, n: int) -> "TriangleTable":
@@ -101,7 +118,7 @@ class TriangleTable:
             edge_g=np.zeros((n, 3, 3), f64), edge_fg=np.zeros((n, 3, 3), f64), edge_abs=np.zeros((n, 3, 3), f64),
             ref=np.zeros((n, 3, 3), f32), edge_eps=np.zeros(n, f32),
             plane_n=np.zeros((n, 2, 3), f64), plane_d=np.zeros((n, 2, 2, 2), f64),
-            hull=np.zeros((n, 6, 2), f64), hull_n=np.zeros(n, np.int32),
+            hull=np.zeros((n, 6, 2), f64), hull_n=np.zeros(n, np.int32), hull_off=np.zeros((n, 6), f64),
         )
 
 
@@ -120,6 +137,23 @@ def _interval_hull_nonneg(a, b, lo, hi):
     if a >= 0.0:  # non-negative on [0, tc]
         return min(lo, 0.0), max(hi, min(1.0, tc * (1.0 + 1e-9) + 1e-12))
     return min(lo, max(0.0, tc * (1.0 - 1e-9) - 1e-12)), max(hi, 1.0)
+
+
+@nb.njit(cache=True, inline="always")
+def _homogeneous_scale(q, r, lens_x, lens_y, tri):
+    """The power of two 2^-e that brings the largest |clip coordinate| or |lens
+    shift| of ``tri`` into [0.5, 1); 1 when they are all zero or the largest
+    is not finite. (Capped at 2^1023 so it stays finite: only coordinates below
+    2^-1024, float64 subnormals, would need more.)"""
+    m = 0.0
+    for k in range(3):
+        for c in range(4):
+            m = max(m, abs(q[tri, k, c]), abs(r[tri, k, c]))
+        for s in range(2):
+            m = max(m, abs(lens_x[tri, k, s]), abs(lens_y[tri, k, s]))
+    if not (0.0 < m < np.inf):
+        return 1.0
+    return math.ldexp(1.0, min(-math.frexp(m)[1], 1023))
 
 
 @nb.njit(cache=True)
@@ -166,19 +200,20 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
         tri = ids[b]
         moving = False
         has_lens = False
+        sc = _homogeneous_scale(q, r, lens_x, lens_y, tri)
         for s in range(2):
             src = q if s == 0 else r
             for k in range(3):
-                x = src[tri, k, 0]
-                y = src[tri, k, 1]
-                z = src[tri, k, 2]
-                w = src[tri, k, 3]
+                x = src[tri, k, 0] * sc
+                y = src[tri, k, 1] * sc
+                z = src[tri, k, 2] * sc
+                w = src[tri, k, 3] * sc
                 px[s, k, 0] = (x + w) * hx
                 px[s, k, 1] = (w - y) * hy
                 px[s, k, 2] = z
                 px[s, k, 3] = w
-                lx[s, k, 0] = lens_x[tri, k, s] * hx
-                lx[s, k, 1] = -lens_y[tri, k, s] * hy
+                lx[s, k, 0] = lens_x[tri, k, s] * sc * hx
+                lx[s, k, 1] = -lens_y[tri, k, s] * sc * hy
                 if lx[s, k, 0] != 0.0 or lx[s, k, 1] != 0.0:
                     has_lens = True
         for k in range(3):
@@ -462,7 +497,10 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
                         hi_v = max(hi_v, base + spread)
                         lo_v = min(lo_v, base - spread)
                     # side + : n.P + D(t) <= 0 for the triangle; side - : n.P + D(t) >= 0
-                    # with D(t) = d0 + v t; value at s=0 is d0, at s=1 is d0 + v
+                    # with D(t) = d0 + v t; value at s=0 is d0, at s=1 is d0 + v; in
+                    # the draw's units (w bounds become depth through its depth_w)
+                    hi_v /= sc
+                    lo_v /= sc
                     if s == 0:
                         plane_d[tri, which, 0, 0] = -hi_v
                         plane_d[tri, which, 1, 0] = -lo_v
@@ -518,14 +556,14 @@ class TriangleSetup:
         self.last_status = status
         kept = ids[status == ST_OK]
         if self.hull:
-            _hulls(kept, t.p0, t.dp, t.t_span, t.flags, t.hull, t.hull_n, ops)
+            _hulls(kept, t.p0, t.dp, t.t_span, t.flags, t.hull, t.hull_n, t.hull_off, ops)
         return kept, ops, events
 
 
 @nb.njit(cache=True)
-def _hulls(ids, p0, dp, t_span, flags, hull, hull_n, ops):
+def _hulls(ids, p0, dp, t_span, flags, hull, hull_n, hull_off, ops):
     """Convex hulls of the six projected vertices of the motion-only triangles
     in front of the camera (McGuire10, Wu13 §3.2)."""
     for tri in ids:
         if (flags[tri] & FLAG_WPOS) != 0 and (flags[tri] & FLAG_LENS) == 0:
-            hull_setup(p0, dp, t_span, tri, hull, hull_n, ops)
+            hull_setup(p0, dp, t_span, tri, hull, hull_n, hull_off, ops)

@@ -29,6 +29,10 @@ them). The checks below are what §8 asks of every hard case:
   tiles, one interval-shader run per pixel);
 * ``assert_continuous``: a 1e-6 relative perturbation of every input
   coordinate changes the image only a little;
+* ``check_scale_invariant``: clip coordinates are homogeneous, so the case
+  with every coordinate and lens shift times a positive factor is the same
+  scene: for every tile-test configuration it covers exactly the same
+  samples with exactly the same depths;
 * ``full_screen_counts_are_one``, ``assert_single_layer_counts`` and
   ``assert_closed_mesh_watertight``: watertightness of meshes (every sample
   once; at most once; front hits equal back hits along every sample ray);
@@ -36,7 +40,7 @@ them). The checks below are what §8 asks of every hard case:
   against the float64 reference renderer, away from edges.
 
 Cases are ``Case`` objects; ``check_exact``, ``check_bbox``, ``check_tiles``,
-``check_continuity`` run the checks on them.
+``check_continuity``, ``check_scale_invariant`` run the checks on them.
 """
 
 from __future__ import annotations
@@ -464,6 +468,45 @@ def check_exact(case, seeds=(0,), variants=VARIANTS):
                                         pattern="interleave" if ov == INTERLEAVE else "net",
                                         what=f"{case.name} {ov or ''} seed {seed}")
             covered = max(covered, int(counts_of(res).sum()))
+    assert covered >= case.min_covered, f"{case.name}: covers only {covered} samples, the case is vacuous"
+    return covered
+
+
+def check_scale_invariant(case, factors, seed=0, variants=VARIANTS):
+    """The case scaled by each of ``factors`` (every clip coordinate and lens
+    shift; the input must stay finite in float32) against the case itself,
+    for every tile-test configuration: each render covers exactly the samples
+    the exact test accepts, with their depths (``assert_exact_coverage``),
+    and the scaled ones exactly the samples of the unscaled render. Under a
+    power-of-two factor, which commutes with rounding, the depths are the
+    same bits too; another factor rounds the vertices differently, which
+    moves depths by float32 rounding (more where w is near 0).
+    Returns the samples covered."""
+    f32max = float(np.finfo(np.float32).max)
+    scaled = []
+    for s in factors:
+        arrays = [a * s for a in case.arrays]
+        assert all(np.all(np.abs(a) <= f32max) for a in arrays), f"{case.name}: x {s:g} is not finite in float32"
+        exact = np.frexp(s)[0] == 0.5
+        scaled.append((s, exact, make_draw(*arrays, width=case.width, height=case.height)))
+    base_draw = make_draw(*case.arrays, width=case.width, height=case.height)
+    covered = 0
+    for ov in variants:
+        pattern = "interleave" if ov == INTERLEAVE else "net"
+        what = f"{case.name} {ov or ''}"
+        base = assert_exact_coverage(base_draw, spp=case.spp, seed=seed, backface=case.backface, overrides=ov,
+                                     pattern=pattern, what=what)
+        hit = base.depth != CLEAR_DEPTH
+        covered = max(covered, int(counts_of(base).sum()))
+        for s, exact, d in scaled:
+            res = assert_exact_coverage(d, spp=case.spp, seed=seed, backface=case.backface, overrides=ov,
+                                        pattern=pattern, what=f"{what} x {s:g}")
+            diff = np.argwhere(np.any((res.depth != CLEAR_DEPTH) != hit, axis=2))
+            assert len(diff) == 0, (f"{what}: scaled by {s:g}, other samples are covered at (row, col) "
+                                    f"{diff[:8].tolist()}")
+            assert np.array_equal(counts_of(res), counts_of(base)), f"{what}: scaled by {s:g}, the hit counts differ"
+            if exact:
+                assert np.array_equal(res.depth, base.depth), f"{what}: scaled by {s:g}, the depths differ"
     assert covered >= case.min_covered, f"{case.name}: covers only {covered} samples, the case is vacuous"
     return covered
 
