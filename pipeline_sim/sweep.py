@@ -69,7 +69,6 @@ import dataclasses
 import hashlib
 import itertools
 import json
-import math
 import os
 import platform
 import sys
@@ -82,6 +81,7 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 import pandas as pd
+import tomli_w
 
 from pipeline_sim.errors import UserError, did_you_mean, unknown_key_error
 from pipeline_sim.output import atomic_write_text
@@ -159,20 +159,10 @@ def point_id(params: dict[str, Any]) -> str:
 
 
 def toml_literal(value: Any) -> str:
-    """``value`` written as a TOML literal (the right-hand side of ``--set``)."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        if math.isnan(value):
-            return "nan"
-        if math.isinf(value):
-            return "inf" if value > 0 else "-inf"
-        return repr(value)
-    if isinstance(value, str):
-        return json.dumps(value)
-    raise TypeError(f"not a TOML scalar: {value!r}")
+    """``value`` written as a TOML literal (the right-hand side of ``--set``), by tomli_w."""
+    if not isinstance(value, (bool, int, float, str)):
+        raise TypeError(f"not a TOML scalar: {value!r}")
+    return tomli_w.dumps({"v": value}).split("=", 1)[1].strip()
 
 
 def _describe(params: dict[str, Any]) -> str:

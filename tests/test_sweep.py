@@ -12,9 +12,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from pipeline_sim.errors import UserError
-from pipeline_sim.sweep import HOST_TIMING_FIELDS, load_sweep, point_id, run_sweep
+from pipeline_sim.sweep import HOST_TIMING_FIELDS, load_sweep, point_id, run_sweep, toml_literal
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -335,3 +337,13 @@ def test_arch_file_fixed_set_and_zip_reach_the_run(tmp_path):
     assert run["arch"]["shading"]["replacement"] == "fifo"
     assert (run["arch"]["shading"]["cache_entries"], run["arch"]["shading"]["cache_ways"]) == (64, 2)
     assert run["set"] == ["zcull.lens_boxes=1", "shading.cache_entries=64", "shading.cache_ways=2"]
+
+
+@given(st.one_of(st.booleans(), st.integers(-2**63, 2**63 - 1), st.floats(allow_nan=True), st.text()))
+def test_toml_literal_reads_back_as_the_same_value(value):
+    """The --set right-hand side a sweep writes for a point parses back (tomllib) to the value it holds."""
+    import tomllib
+
+    back = tomllib.loads(f"v = {toml_literal(value)}")["v"]
+    assert back == value or (value != value and back != back)
+    assert type(back) is type(value)
