@@ -110,13 +110,16 @@ is front (a mirroring glTF node transform reverses it, as glTF specifies).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
+import logging
 import math
 import re
 import tomllib
-from collections.abc import Callable, Mapping
+import warnings
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -763,6 +766,153 @@ def _gltf_buffer_bytes(path: Path) -> bytes:
     return out
 
 
+_FORMAT_NAMES = {".obj": "OBJ", ".ply": "PLY", ".stl": "STL", ".off": "OFF", ".gltf": "glTF", ".glb": "GLB"}
+_STL_HEADER = 84  # binary STL: 80-byte header, uint32 triangle count, then 50 bytes a triangle
+_STL_TRIANGLE = 50
+
+
+def _utf8_problem(data: bytes) -> str | None:
+    """Why ``data`` is not text (UTF-8 without NUL bytes), or None."""
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        return f"not UTF-8 text at byte {e.start} (0x{data[e.start]:02x})"
+    if "\0" in text:
+        return f"not text: a NUL byte at byte {data.index(0)}"
+    return None
+
+
+def _stl_problem(data: bytes) -> str | None:
+    if len(data) >= _STL_HEADER:
+        count = int.from_bytes(data[80:84], "little")
+        if len(data) == _STL_HEADER + _STL_TRIANGLE * count:
+            return None
+        binary = (f"its header gives {count} triangles, {_STL_HEADER + _STL_TRIANGLE * count} bytes, "
+                  f"but the file has {len(data)}")
+    else:
+        binary = f"{len(data)} bytes, shorter than the {_STL_HEADER}-byte header"
+    text = _utf8_problem(data) or (None if data.lstrip()[:5].lower() == b"solid" else "does not start with 'solid'")
+    return None if text is None else f"neither binary STL ({binary}) nor ASCII STL: {text}"
+
+
+def _ply_problem(data: bytes) -> str | None:
+    if not (data.startswith(b"ply\n") or data.startswith(b"ply\r\n")):
+        return "does not start with the line 'ply'"
+    end = data.find(b"end_header")
+    if end < 0:
+        return "no 'end_header' line"
+    problem = _utf8_problem(data[:end])
+    return None if problem is None else f"the header is {problem}"
+
+
+def _glb_problem(data: bytes) -> str | None:
+    if len(data) < 12 or data[:4] != b"glTF":
+        return "does not start with the 12-byte GLB header (magic 'glTF')"
+    version = int.from_bytes(data[4:8], "little")
+    length = int.from_bytes(data[8:12], "little")
+    if version != 2:
+        return f"GLB version {version}, only version 2 is supported"
+    if length != len(data):
+        return f"its header gives a length of {length} bytes but the file has {len(data)}"
+    chunk = int.from_bytes(data[12:16], "little")
+    if data[16:20] != b"JSON" or 20 + chunk > len(data):
+        return "the header is not followed by a whole JSON chunk"
+    problem = _gltf_problem(data[20 : 20 + chunk])
+    return None if problem is None else f"its JSON chunk: {problem}"
+
+
+def _gltf_problem(data: bytes) -> str | None:
+    problem = _utf8_problem(data)
+    if problem is not None:
+        return problem
+    try:
+        doc = json.loads(data.decode("utf-8"))
+    except json.JSONDecodeError as e:
+        return f"not JSON (line {e.lineno}, column {e.colno}: {e.msg})"
+    if not isinstance(doc, dict) or "asset" not in doc:
+        return "the JSON is not a glTF document (no 'asset' object)"
+    return None
+
+
+def _off_problem(data: bytes) -> str | None:
+    """The OFF layout: 'OFF' (or 'COFF'), the vertex and face counts, then
+    that many vertex lines (x y z ...) and face lines (k i1 .. ik ...)."""
+    problem = _utf8_problem(data)
+    if problem is not None:
+        return problem
+    lines = [(n, line.split("#", 1)[0].split()) for n, line in enumerate(data.decode("utf-8").splitlines(), 1)]
+    lines = [(n, words) for n, words in lines if words]
+    if not lines or lines[0][1][0] not in ("OFF", "COFF"):
+        return "does not start with 'OFF'"
+    lines[0] = (lines[0][0], lines[0][1][1:])  # the counts may follow the keyword on its line
+    if not lines[0][1]:
+        del lines[0]
+
+    def shown(words: list[str]) -> str:
+        text = " ".join(words)
+        return f"'{text}'" if len(text) <= 40 else f"'{text[:40]}...'"
+
+    def numbers(words: list[str], kind: type) -> bool:
+        try:
+            for w in words:
+                kind(w)
+        except ValueError:
+            return False
+        return True
+
+    if not lines or len(lines[0][1]) < 2 or not numbers(lines[0][1][:2], int):
+        return "no vertex and face counts after 'OFF'" if not lines else (
+            f"line {lines[0][0]}: expected the vertex and face counts, got {shown(lines[0][1])}")
+    nv, nf = (int(w) for w in lines[0][1][:2])
+    body = lines[1:]
+    if nv < 0 or nf < 0 or len(body) < nv + nf:
+        return f"the counts give {nv} vertices and {nf} faces, but {len(body)} lines follow"
+    for n, words in body[:nv]:
+        if len(words) < 3 or not numbers(words[:3], float):
+            return f"line {n}: expected a vertex (three numbers), got {shown(words)}"
+    for n, words in body[nv:nv + nf]:
+        k = int(words[0]) if numbers(words[:1], int) else 0
+        if k < 3 or len(words) <= k or not numbers(words[1:k + 1], int):
+            return f"line {n}: expected a face (a count k >= 3 and k vertex indices), got {shown(words)}"
+    return None
+
+
+# a format's own check of a file's bytes, before trimesh parses it: trimesh
+# decodes text it cannot read as UTF-8 with an optional dependency (not
+# installed), and its errors on garbage rarely say what is wrong
+_FORMAT_PROBLEM: dict[str, Callable[[bytes], str | None]] = {
+    ".obj": _utf8_problem, ".off": _off_problem, ".stl": _stl_problem, ".ply": _ply_problem,
+    ".glb": _glb_problem, ".gltf": _gltf_problem,
+}
+
+
+@contextlib.contextmanager
+def _quiet_parser() -> Iterator[None]:
+    """Silence what trimesh reports on its own while it parses a bad file (numpy
+    floating-point warnings, Python warnings, log messages to stderr): the
+    loader reports the problem itself, on one line."""
+    logger = logging.getLogger("trimesh")
+    was = logger.disabled
+    logger.disabled = True
+    try:
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            yield
+    finally:
+        logger.disabled = was
+
+
+def _parse_error_detail(e: Exception) -> str:
+    """One line saying what a mesh parser's exception found wrong."""
+    if isinstance(e, KeyError) and e.args:
+        return f"missing entry {e.args[0]!r}"
+    if isinstance(e, UnicodeDecodeError):
+        return f"not UTF-8 text at byte {e.start}"
+    text = str(e).strip()
+    first = text.splitlines()[0] if text else ""
+    return f"{type(e).__name__}: {first}" if first else type(e).__name__
+
+
 def _load_mesh_file(r: _Reader, key: str, written: str, resolved: Path) -> _LoadedMesh:
     import trimesh
 
@@ -777,11 +927,17 @@ def _load_mesh_file(r: _Reader, key: str, written: str, resolved: Path) -> _Load
             key, f"unsupported mesh format '{suffix or resolved.name}' for {shown}; expected one of: {', '.join(MESH_FORMATS)}"
         )
     try:
-        data = resolved.read_bytes() + _gltf_buffer_bytes(resolved)
+        raw = resolved.read_bytes()
+        data = raw + _gltf_buffer_bytes(resolved)
     except OSError as e:
         raise r.error(key, f"cannot read mesh file {shown}: {e.strerror or e}") from None
+    invalid = f"not a valid {_FORMAT_NAMES[suffix]} file {shown}"
+    problem = _FORMAT_PROBLEM[suffix](raw)
+    if problem is not None:
+        raise r.error(key, f"{invalid}: {_printable(problem)}")
     try:
-        loaded = trimesh.load_scene(str(resolved), process=False)
+        with _quiet_parser():
+            loaded = trimesh.load_scene(str(resolved), process=False)
         parts = [
             (np.asarray(loaded.graph[node][0], dtype=np.float64), loaded.geometry[name])
             for node in loaded.graph.nodes_geometry
@@ -789,15 +945,15 @@ def _load_mesh_file(r: _Reader, key: str, written: str, resolved: Path) -> _Load
             if isinstance(loaded.geometry.get(name), trimesh.Trimesh)
         ]
     except Exception as e:  # trimesh raises many kinds on bad files
-        detail = _printable((str(e).strip().splitlines() or [type(e).__name__])[0])
-        raise r.error(key, f"cannot load mesh file {shown}: {detail}") from None
+        raise r.error(key, f"{invalid}: {_printable(_parse_error_detail(e))}") from None
 
     positions, normals, faces, colors = [], [], [], []
     offset = 0
     for transform, part in parts:
         if len(part.faces) == 0:
             continue
-        p, n, f, c = _mesh_part(r, key, shown, part, transform)
+        with _quiet_parser():  # huge or degenerate triangles: _mesh_part keeps their normals finite
+            p, n, f, c = _mesh_part(r, key, shown, part, transform)
         positions.append(p)
         normals.append(n)
         faces.append(f + offset)
@@ -842,7 +998,11 @@ def _mesh_part(
         raise r.error(key, f"mesh file has non-finite vertex normals: {shown}")
     has_colors = mesh.visual.kind == "vertex"
     if not has_normals and not has_colors:
-        mesh.merge_vertices()  # so that smooth normals can be computed
+        # vertices merged where their positions are equal, so that smooth
+        # normals can be computed (trimesh's merge_vertices rounds through
+        # int64, which overflows for coordinates beyond about 1e10)
+        unique, inverse = np.unique(vertices + 0.0, axis=0, return_inverse=True)  # + 0.0: -0.0 is 0.0
+        mesh = type(mesh)(unique, inverse.reshape(-1)[faces], process=False)
     mesh.remove_unreferenced_vertices()
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64)
@@ -863,8 +1023,8 @@ def _mesh_part(
         if det < 0.0:  # a mirroring node transform reverses the winding (as glTF specifies)
             faces = faces[:, ::-1]
     length = np.linalg.norm(normals, axis=1)
-    zero = ~(length > 1e-12)
-    normals[zero] = (0.0, 0.0, 1.0)  # vertices used only by degenerate triangles
+    zero = ~((length > 1e-12) & (length < np.inf))
+    normals[zero] = (0.0, 0.0, 1.0)  # vertices used only by degenerate triangles (or overflowing normals)
     normals /= np.where(zero, 1.0, length)[:, None]
     return vertices, normals, faces, colors
 
