@@ -8,10 +8,14 @@ suggested), numbers must be finite (TOML's ``nan`` and ``inf`` are refused),
 and integers must be written as integers (``320``, not ``320.0``).
 
 Coordinates are right-handed with y up, as in OpenGL: the camera looks down
-its -z axis. Colours are linear RGB (components >= 0; values above 1 are
-allowed). Angles are in degrees. Time t runs over the shutter from 0 (open)
-to 1 (close); everything that moves, moves linearly per vertex in world
-space between its shutter-open and shutter-close positions.
+its -z axis. Colours are linear RGB (components from 0 to ``MAX_RADIANCE``
+= 1e8; values above 1 are allowed). Angles are in degrees. Time t runs over
+the shutter from 0 (open) to 1 (close); everything that moves, moves
+linearly per vertex in world space between its shutter-open and
+shutter-close positions. Every vertex's world position, clip coordinate and
+lens shift must lie within +-``MAX_COORDINATE`` = 2^126 (half the float32
+range), as must a point light's position: with these bounds every value the
+pipeline shades, tests and stores is finite.
 
 Format
 ------
@@ -61,8 +65,8 @@ Format
                                  # (default [-0.3, -1.0, -0.5])
     # position = [2.0, 4.0, 3.0] # point only, required
     color = [1.0, 1.0, 1.0]      # default [1, 1, 1]
-    intensity = 1.0              # >= 0, default 1
-    ambient = 0.15               # >= 0, default 0.1
+    intensity = 1.0              # 0 to 1e8, default 1
+    ambient = 0.15               # 0 to 1e8, default 0.1
 
     [[objects]]                  # zero or more
     name = "ball"                # optional, unique; default "object<i>" (i from 0)
@@ -106,6 +110,9 @@ only with ``use_vertex_colors = true`` (parts of a file without them, and
 files without them, get the object's ``color``); textures and materials in
 the file are ignored. Triangles keep the file's winding: counter-clockwise
 is front (a mirroring glTF node transform reverses it, as glTF specifies).
+A file that is not valid in its format is refused on one line saying what
+is wrong with it (not UTF-8 text, a binary header whose sizes do not match
+the file, malformed JSON, an OFF line that is not a vertex or a face).
 """
 
 from __future__ import annotations
@@ -152,6 +159,20 @@ DEFAULT_OBJECT_COLOR = (0.8, 0.8, 0.8)
 
 _MAX_IMAGE_SIZE = 16384
 _MAX_SPP = 16384
+
+#: Largest colour component (objects, background, light), light intensity and
+#: ambient term. The standard shader (``pipeline_sim.shaders``) computes, in
+#: float32, colour * (ambient + light colour * intensity * max(n.l, 0) *
+#: attenuation) with attenuation = 1 / max(d^2, 1e-12) <= 1e12: with each
+#: factor at most 1e8 that is at most 1e8 * (1e8 + 1e8 * 1e8 * 1e12) ~ 1e36,
+#: below the largest finite float32 (3.4e38), so no shaded value overflows.
+MAX_RADIANCE = 1e8
+
+#: Largest magnitude of a coordinate the pipeline computes with (a light
+#: position; a vertex's world position, clip coordinate or lens shift, checked
+#: by ``pipeline_sim.draw.build_draw``): 2^126, half the float32 range, so the
+#: difference of two such coordinates (an edge, a light vector) stays finite.
+MAX_COORDINATE = 2.0**126
 
 
 def _readonly(a: Any, dtype: Any, shape: tuple[int | None, ...]) -> np.ndarray:
@@ -387,9 +408,19 @@ class SceneObject:
         """(V,3) float64 unit world-space normals at shutter time t in [0, 1]
         (inverse-transpose transformed, interpolated linearly, renormalized)."""
         t = _check_time(t)
+        # inv(M) = inv(M D^-1) D^-1 with D the powers of two of M's column
+        # magnitudes: M D^-1 is well conditioned for any scale (1e-300 or
+        # 1e300 included), and n D^-1 is taken relative to the smallest power of
+        # both matrices, one common factor, so the result is (inv(M)^T n^T)^T
+        # times a power of two, exactly, and the interpolation is unchanged
+        def powers(m: np.ndarray) -> np.ndarray:
+            return np.frexp(np.abs(m[:3, :3]).max(axis=0))[1]
+
+        low = min(powers(self.transform_open).min(), powers(self.transform_close).min())
 
         def at(m: np.ndarray) -> np.ndarray:
-            return self.normals @ np.linalg.inv(m[:3, :3])  # == (inv(M)^T n^T)^T
+            e = powers(m)
+            return np.ldexp(self.normals, low - e) @ np.linalg.inv(np.ldexp(m[:3, :3], -e))
 
         n = at(self.transform_open)
         if t != 0.0 and self.moving:
@@ -546,7 +577,19 @@ class _Reader:
         c = self.numbers(v, key, 3)
         if np.any(c < 0.0):
             raise self.error(key, f"colour components must be >= 0, got {_fmt(c)}")
+        if np.any(c > MAX_RADIANCE):
+            raise self.error(key, f"colour components must be <= {MAX_RADIANCE:g} (so that float32 shading "
+                             f"stays finite), got {_fmt(c)}")
         return c
+
+    def radiance(self, v: Any, key: str) -> float:
+        """A light intensity or ambient term: in [0, MAX_RADIANCE]."""
+        x = self.number(v, key)
+        if x < 0.0:
+            raise self.error(key, f"must be >= 0, got {x:g}")
+        if x > MAX_RADIANCE:
+            raise self.error(key, f"must be <= {MAX_RADIANCE:g} (so that float32 shading stays finite), got {x:g}")
+        return x
 
     def choice(self, v: Any, key: str, choices: tuple[str, ...], what: str) -> str:
         s = self.string(v, key)
@@ -1179,21 +1222,20 @@ def _parse_light(r: _Reader, data: dict) -> Light:
         if "position" in tbl:
             raise r.error("light.position", "applies only to point lights; use direction")
         direction = r.numbers(tbl.get("direction", list(DEFAULT_LIGHT_DIRECTION)), "light.direction", 3)
-        length = np.linalg.norm(direction)
-        if length < 1e-12:
+        if not np.any(direction):
             raise r.error("light.direction", "must not be the zero vector")
-        direction = direction / length
+        direction = direction * 2.0 ** -math.frexp(np.abs(direction).max())[1]  # exact; keeps 1e300 in range
+        direction = direction / np.linalg.norm(direction)
     else:
         if "direction" in tbl:
             raise r.error("light.direction", "applies only to directional lights; use position")
         position = r.numbers(r.require(tbl, "light", "position", " for a point light"), "light.position", 3)
+        if np.any(np.abs(position) > MAX_COORDINATE):
+            raise r.error("light.position", f"coordinates must be within +-{MAX_COORDINATE:g} (half the float32 "
+                          f"range), got {_fmt(position)}")
     color = r.color(tbl.get("color", [1.0, 1.0, 1.0]), "light.color")
-    intensity = r.number(tbl.get("intensity", 1.0), "light.intensity")
-    if intensity < 0.0:
-        raise r.error("light.intensity", f"must be >= 0, got {intensity:g}")
-    ambient = r.number(tbl.get("ambient", 0.1), "light.ambient")
-    if ambient < 0.0:
-        raise r.error("light.ambient", f"must be >= 0, got {ambient:g}")
+    intensity = r.radiance(tbl.get("intensity", 1.0), "light.intensity")
+    ambient = r.radiance(tbl.get("ambient", 0.1), "light.ambient")
     return Light(kind=kind, direction=direction, position=position, color=color, intensity=intensity, ambient=ambient)
 
 
