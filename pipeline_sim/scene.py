@@ -157,8 +157,8 @@ MESH_FORMATS = (".obj", ".ply", ".stl", ".off", ".gltf", ".glb")
 DEFAULT_LIGHT_DIRECTION = (-0.3, -1.0, -0.5)
 DEFAULT_OBJECT_COLOR = (0.8, 0.8, 0.8)
 
-_MAX_IMAGE_SIZE = 16384
-_MAX_SPP = 16384
+#: Largest width, height and samples per pixel of an image.
+IMAGE_LIMITS = {"width": 16384, "height": 16384, "spp": 16384}
 
 #: Largest colour component (objects, background, light), light intensity and
 #: ambient term. The standard shader (``pipeline_sim.shaders``) computes, in
@@ -1076,21 +1076,30 @@ def _mesh_part(
 # Sections
 
 
+def check_image_value(name: str, value: Any, where: str) -> int:
+    """``value`` as the image setting ``name`` (width, height, spp or seed):
+    an integer, > 0 and at most ``IMAGE_LIMITS[name]`` (a seed: in [0, 2^64)).
+    Otherwise a :class:`UserError` naming ``where`` (a scene key, a command-line
+    option or a sweep setting): the scene file and every override of it
+    pass this one check."""
+    if type(value) is not int:
+        raise UserError(f"{where}: expected an integer, got {_type_name(value)}")
+    if name == "seed":
+        if not 0 <= value < 2**64:
+            raise UserError(f"{where}: must be in [0, 2^64), got {value}")
+    elif value <= 0:
+        raise UserError(f"{where}: must be > 0, got {value}")
+    elif value > IMAGE_LIMITS[name]:
+        raise UserError(f"{where}: must be <= {IMAGE_LIMITS[name]}, got {value}")
+    return value
+
+
 def _parse_image(r: _Reader, data: dict) -> ImageSettings:
     tbl = r.require_table(data, "image")
     r.check_keys(tbl, "image", ("width", "height", "spp", "seed"))
-    values = {}
-    for name, limit in (("width", _MAX_IMAGE_SIZE), ("height", _MAX_IMAGE_SIZE), ("spp", _MAX_SPP)):
-        key = f"image.{name}"
-        x = r.integer(r.require(tbl, "image", name), key)
-        if x <= 0:
-            raise r.error(key, f"must be > 0, got {x}")
-        if x > limit:
-            raise r.error(key, f"must be <= {limit}, got {x}")
-        values[name] = x
-    seed = r.integer(tbl.get("seed", 0), "image.seed")
-    if not 0 <= seed < 2**64:
-        raise r.error("image.seed", f"must be in [0, 2^64), got {seed}")
+    values = {name: check_image_value(name, r.require(tbl, "image", name), f"{r.ctx}: image.{name}")
+              for name in IMAGE_LIMITS}
+    seed = check_image_value("seed", tbl.get("seed", 0), f"{r.ctx}: image.seed")
     return ImageSettings(seed=seed, **values)
 
 

@@ -170,9 +170,10 @@ class Rop:
         return None, ops, events, traffic
 
     def resolve(self) -> np.ndarray:
-        """Box-filter resolve: the mean of each pixel's samples, (H, W, 4) float32."""
+        """Box-filter resolve: the mean of each pixel's samples, (H, W, 4) float32
+        (the ROP's own image, not a copy: a frame's image can be gigabytes)."""
         self._resolve_region()
-        return self.image.copy()
+        return self.image
 
     def depth_samples(self) -> np.ndarray | None:
         """The frame's per-sample depth, (H, W, spp), after ``resolve``; None
