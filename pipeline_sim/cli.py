@@ -168,6 +168,7 @@ def cmd_compare(args) -> int:
                                       write_comparison)
     from pipeline_sim.config import apply_overrides
     from pipeline_sim.preflight import validate_run
+    from reports.run_report import percent
 
     algorithms = parse_algorithms(args.algorithms)
     scene, arch = _load_inputs(args)
@@ -178,7 +179,7 @@ def cmd_compare(args) -> int:
 
     def progress(name, row):
         if not args.quiet:
-            print(f"  {name}: STE {100 * row['ste']:.2f}%, {row['samples_tested']:,} samples tested, "
+            print(f"  {name}: STE {percent(row['ste'], 2)}, {row['samples_tested']:,} samples tested, "
                   f"{row['frame_cycles']:,.0f} cycles, {row['wall_time_s']:.2f} s", file=sys.stderr)
 
     reference = reference_image(scene, spec, arch=arch) if spec is not None else None

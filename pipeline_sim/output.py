@@ -52,7 +52,10 @@ def read_exr(path: Path) -> np.ndarray:
 
 
 def write_json(path: Path, data: dict) -> None:
-    path.write_text(json.dumps(data, indent=2, sort_keys=True, default=_json_default) + "\n")
+    """Strict JSON (RFC 8259): a NaN or infinity is an error here, not a
+    ``NaN`` token other parsers reject; a figure with no finite value is
+    written as null by its source (:func:`finite_or_none`)."""
+    path.write_text(json.dumps(data, indent=2, sort_keys=True, default=_json_default, allow_nan=False) + "\n")
 
 
 def _json_default(obj):
@@ -65,6 +68,13 @@ def _json_default(obj):
     if isinstance(obj, Path):
         return str(obj)
     raise TypeError(f"not JSON serializable: {type(obj)}")
+
+
+def finite_or_none(value: float | None) -> float | None:
+    """``value`` as a float, or None (JSON null) when it has no finite value:
+    a ratio over nothing (STE with no sample tested) or the PSNR of two
+    identical images."""
+    return None if value is None or not np.isfinite(value) else float(value)
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:

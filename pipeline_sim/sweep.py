@@ -462,7 +462,8 @@ def _json_text(data: Any, indent: int | None = 2) -> str:
     from pipeline_sim.output import _json_default
 
     seps = None if indent else (",", ":")
-    return json.dumps(data, indent=indent, sort_keys=indent is not None, default=_json_default, separators=seps) + "\n"
+    return json.dumps(data, indent=indent, sort_keys=indent is not None, default=_json_default, separators=seps,
+                      allow_nan=False) + "\n"
 
 
 def _one_line(exc: BaseException) -> str:
@@ -472,7 +473,8 @@ def _one_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
-def _summarize(result: Any, metrics: dict[str, float]) -> dict[str, Any]:
+def _summarize(result: Any, metrics: dict[str, float | None]) -> dict[str, Any]:
+    """The point's summary record (STE None when no sample was tested)."""
     from reports.run_report import headline
 
     hd = headline(result)
@@ -485,13 +487,13 @@ def _summarize(result: Any, metrics: dict[str, float]) -> dict[str, Any]:
         "ops_total": int(c[c.counter.isin(_ARITHMETIC)].value.sum()),
         "samples_tested": int(hd["samples_tested"]),
         "samples_covered": int(hd["samples_covered"]),
-        "ste": float(hd["ste"]),
+        "ste": hd["ste"],
         "shader_executions": int(hd["shader_executions"]),
         "shader_executions_per_pixel": float(hd["shader_executions_per_pixel"]),
         "depth_bytes_per_pixel": float(hd["depth_bytes_per_pixel"]),
         "bottleneck_unit": str(busiest),
     }
-    out.update({k: float(v) for k, v in metrics.items()})
+    out.update(metrics)
     return out
 
 
@@ -524,7 +526,7 @@ def _run_point(spec: dict[str, Any], params: dict[str, Any], out: Path,
     from pipeline_sim.cli import _package_versions
     from pipeline_sim.config import load_arch
     from pipeline_sim.jit import warm_up
-    from pipeline_sim.output import atomic_directory, write_json, write_png
+    from pipeline_sim.output import atomic_directory, finite_or_none, write_json, write_png
     from pipeline_sim.render import render_scene
     from pipeline_sim.scene import load_scene
 
@@ -542,7 +544,8 @@ def _run_point(spec: dict[str, Any], params: dict[str, Any], out: Path,
     reference = reference_image(scene, ref_spec, cache_dir=out / "reference", arch=arch)
     t1 = time.perf_counter()
     all_metrics = error_metrics(result.image, reference)
-    metrics = {k: all_metrics[k] for k in spec["metrics"]}
+    # an image identical to its reference has an infinite PSNR: null in the records
+    metrics = {k: finite_or_none(all_metrics[k]) for k in spec["metrics"]}
     emap = error_map(result.image, reference)
     t2 = time.perf_counter()
 
