@@ -70,16 +70,14 @@ def _package_versions() -> dict[str, str]:
 
 def _load_inputs(args):
     from pipeline_sim.config import load_arch
-    from pipeline_sim.scene import load_scene
+    from pipeline_sim.scene import check_image_value, load_scene
 
     scene = load_scene(args.scene)
     image = scene.image
     if args.spp is not None:
-        if args.spp < 1:
-            raise UserError(f"--spp: must be at least 1, got {args.spp}")
-        image = dataclasses.replace(image, spp=args.spp)
+        image = dataclasses.replace(image, spp=check_image_value("spp", args.spp, "--spp"))
     if args.seed is not None:
-        image = dataclasses.replace(image, seed=args.seed)
+        image = dataclasses.replace(image, seed=check_image_value("seed", args.seed, "--seed"))
     scene = scene.replace(image=image)
     overrides = list(args.set or [])
     if args.tile is not None:
@@ -104,22 +102,26 @@ def _progress_bar(quiet: bool):
 
 
 def cmd_run(args) -> int:
+    from pipeline_sim.preflight import validate_run
+
+    scene, arch = _load_inputs(args)
+    draw = validate_run(scene, [arch], str(args.scene))  # all of it before a kernel module is imported
+
+    import numpy as np
+
     from pipeline_sim.jit import warm_up
     from pipeline_sim.output import write_exr, write_json, write_png
     from pipeline_sim.output_folder import OutputFolder
     from pipeline_sim.render import render_scene
     from reports.run_report import headline, html_report, markdown_report, summary_text
 
-    import numpy as np
-
-    scene, arch = _load_inputs(args)
     with OutputFolder(args.out, "run", force=args.force) as out:
         compile_s = warm_up()
         if not args.quiet:
             print(f"numba kernels ready in {compile_s:.2f} s (compiled on first use, then loaded from cache)")
         update, close = _progress_bar(args.quiet)
         try:
-            result = render_scene(scene, arch, progress=update)
+            result = render_scene(scene, arch, progress=update, draw=draw)
         finally:
             close()
         info = {
@@ -157,10 +159,10 @@ def cmd_run(args) -> int:
 
 
 def cmd_check(args) -> int:
-    scene, arch = _load_inputs(args)
-    from pipeline_sim.draw import build_draw
+    from pipeline_sim.preflight import validate_run
 
-    draw = build_draw(scene)
+    scene, arch = _load_inputs(args)
+    draw = validate_run(scene, [arch], str(args.scene))
     print(f"{args.scene}: ok: {len(scene.objects)} objects, {draw.n} triangles, "
           f"{scene.image.width}x{scene.image.height} at {scene.image.spp} spp, "
           f"motion={draw.has_motion}, lens={draw.has_lens}")
@@ -186,14 +188,20 @@ def cmd_warmup(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    from pipeline_sim.compare import format_checks, format_table, parse_algorithms, write_comparison
+    from pipeline_sim.accuracy import ReferenceSpec
+    from pipeline_sim.compare import ALGORITHMS, format_checks, format_table, parse_algorithms, write_comparison
+    from pipeline_sim.config import apply_overrides
     from pipeline_sim.output_folder import OutputFolder
+    from pipeline_sim.preflight import validate_run
 
     algorithms = parse_algorithms(args.algorithms)
     scene, arch = _load_inputs(args)
+    spec = ReferenceSpec(spp=args.reference_spp) if args.reference_spp else None
+    validate_run(scene, [apply_overrides(arch, ALGORITHMS[name]) for name in algorithms], str(args.scene),
+                 reference_spp=spec.spp if spec else None)
     with contextlib.ExitStack() as stack:
         out = stack.enter_context(OutputFolder(args.out, "compare", force=args.force)) if args.out else None
-        comp, compile_s = _compare_all(args, scene, arch, algorithms)
+        comp, compile_s = _compare_all(args, scene, arch, algorithms, spec)
         info = {"scene": str(args.scene), "scene_digest": scene.digest, "image": dataclasses.asdict(scene.image),
                 "arch": arch.to_dict(), "algorithms": algorithms, "compile_time_s": compile_s,
                 "versions": _package_versions()}
@@ -212,23 +220,22 @@ def cmd_compare(args) -> int:
     return 0
 
 
-def _compare_all(args, scene, arch, algorithms):
-    """Render ``scene`` with each algorithm (and the reference, if asked); return the comparison and compile time."""
+def _compare_all(args, scene, arch, algorithms, spec):
+    """Render ``scene`` with each algorithm (and the reference ``spec``, if any); return the comparison and
+    the kernels' compile time."""
+    from pipeline_sim.accuracy import reference_image
     from pipeline_sim.compare import compare
     from pipeline_sim.jit import warm_up
+    from reports.run_report import percent
 
     compile_s = warm_up()
 
     def progress(name, row):
         if not args.quiet:
-            print(f"  {name}: STE {100 * row['ste']:.2f}%, {row['samples_tested']:,} samples tested, "
+            print(f"  {name}: STE {percent(row['ste'], 2)}, {row['samples_tested']:,} samples tested, "
                   f"{row['frame_cycles']:,.0f} cycles, {row['wall_time_s']:.2f} s", file=sys.stderr)
 
-    reference = None
-    if args.reference_spp:
-        from pipeline_sim.accuracy import ReferenceSpec, reference_image
-
-        reference = reference_image(scene, ReferenceSpec(spp=args.reference_spp), arch=arch)
+    reference = reference_image(scene, spec, arch=arch) if spec is not None else None
     comp = compare(scene, arch, algorithms, progress=progress, reference=reference)
     return comp, compile_s
 

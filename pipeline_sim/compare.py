@@ -100,7 +100,7 @@ class Comparison:
 
 def _ratio_check(a: float, b: float, target: float) -> tuple[str, bool]:
     ratio = a / b if b else float("nan")
-    return f"{ratio:.2f}x", bool(ratio >= target)
+    return (f"{ratio:.2f}x" if np.isfinite(ratio) else "n/a (no sample tested)"), bool(ratio >= target)
 
 
 def _linear_vs_quadratic(t: pd.DataFrame) -> tuple[str, bool]:
@@ -231,15 +231,21 @@ def comparison_figure(table: pd.DataFrame):
 def write_comparison(comp: Comparison, out: OutputFolder, info: dict) -> Path:
     """Write table.csv, comparison.json, comparison.png and one image per algorithm into the claimed
     output folder ``out`` (claim it before the algorithms run, so a bad destination fails first) and
-    commit it; return its path."""
-    from pipeline_sim.output import write_json, write_png
+    commit it; return its path.
+
+    In comparison.json a figure with no finite value is null: STE and its
+    ratio when no sample was tested, the PSNR of an image identical to the
+    one it is measured against."""
+    from pipeline_sim.output import finite_or_none, write_json, write_png
     from reports.figures import figure_png
 
+    rows = [{k: finite_or_none(v) if isinstance(v, float) else v for k, v in row.items()}
+            for row in comp.table.to_dict("records")]
     tmp = out.staging
     comp.table.to_csv(tmp / "table.csv", index=False)
     write_json(tmp / "comparison.json", {**info, "identical_images": comp.identical,
                                           "differing": comp.differing, "paper_checks": comp.checks,
-                                          "rows": comp.table.to_dict("records")})
+                                          "rows": rows})
     (tmp / "comparison.png").write_bytes(figure_png(comparison_figure(comp.table)))
     for name, img in comp.images.items():
         stem = f"image_{name.replace('+', '_').replace('/', '_')}"
@@ -250,8 +256,10 @@ def write_comparison(comp: Comparison, out: OutputFolder, info: dict) -> Path:
 
 def format_table(table: pd.DataFrame) -> str:
     """The table as printed by `pipeline-sim compare`."""
+    from reports.run_report import percent
+
     show = table.copy()
-    show["ste"] = (100 * show.ste).map("{:.2f}%".format)
+    show["ste"] = show.ste.map(lambda v: percent(v, 2))
     for col in ("ste_vs_baseline", "samples_tested_vs_baseline"):
         show[col] = show[col].map("{:.2f}x".format)
     show["wall_time_s"] = show.wall_time_s.map("{:.2f}".format)

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline_sim.errors import UserError
+from pipeline_sim.scene import MAX_COORDINATE
 
 MATERIAL_IDS = {"flat": 0, "lambert": 1}
 
@@ -67,19 +68,38 @@ def lens_shift(proj: np.ndarray, w: np.ndarray, radius: float, focus: float) -> 
     return proj[0, 0] * coc, proj[1, 1] * coc
 
 
+def _check_range(where: str, what: str, values: np.ndarray) -> None:
+    """Refuse a value beyond +-MAX_COORDINATE (or not finite), naming it."""
+    bad = np.flatnonzero(~(np.abs(values) <= MAX_COORDINATE))
+    if len(bad):
+        v = values.reshape(-1)[bad[0]]
+        found = f"reaches {v:g}" if np.isfinite(v) else "overflows"
+        raise UserError(f"{where}: {what} {found}, beyond +-{MAX_COORDINATE:g} (half the float32 range the "
+                        "pipeline computes in)")
+
+
 def build_draw(scene) -> Draw:
-    """Transform every object of ``scene`` to clip space at t=0 and t=1."""
+    """Transform every object of ``scene`` to clip space at t=0 and t=1.
+
+    Every world position, clip coordinate and lens shift must lie within
+    +-``MAX_COORDINATE`` (else a :class:`UserError` names the object)."""
     img = scene.image
     cam = scene.camera
     proj = cam.projection_matrix(img.width / img.height)
     views = [cam.view_matrix(0.0), cam.view_matrix(1.0)]
+    where = scene.path or "scene"
     qs, rs, pos, nrm, col, mat, oid = [], [], [[], []], [[], []], [], [], []
     for index, obj in enumerate(scene.objects):
         faces = np.asarray(obj.faces, dtype=np.int64)
         for t in (0, 1):
-            world = obj.world_positions(t)
-            hom = np.concatenate([world, np.ones((len(world), 1))], axis=1)
-            clip = hom @ (proj @ views[t]).T
+            shutter = ("open", "close")[t]
+            with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused just below
+                world = obj.world_positions(t)
+                hom = np.concatenate([world, np.ones((len(world), 1))], axis=1)
+                clip = hom @ (proj @ views[t]).T
+            _check_range(f"{where}: objects[{index}] ('{obj.name}')", f"a world coordinate at shutter {shutter}", world)
+            _check_range(f"{where}: objects[{index}] ('{obj.name}')",
+                         f"a clip coordinate (seen by the camera) at shutter {shutter}", clip)
             (qs if t == 0 else rs).append(clip[faces])
             pos[t].append(world[faces])
             nrm[t].append(obj.world_normals(t)[faces])
@@ -87,19 +107,20 @@ def build_draw(scene) -> Draw:
         mat.append(np.full(len(faces), MATERIAL_IDS[obj.material], dtype=np.int32))
         oid.append(np.full(len(faces), index, dtype=np.int32))
     if not qs:
-        raise UserError(f"{scene.path or 'scene'}: the scene has no triangles")
+        raise UserError(f"{where}: the scene has no triangles")
     q = np.concatenate(qs)
     r = np.concatenate(rs)
-    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(r))):
-        raise UserError(f"{scene.path or 'scene'}: a vertex transforms to a non-finite clip position")
     n = len(q)
     lens_x = np.zeros((n, 3, 2))
     lens_y = np.zeros((n, 3, 2))
     if cam.lens is not None and cam.lens.radius > 0:
-        for t, verts in enumerate((q, r)):
-            lens_x[:, :, t], lens_y[:, :, t] = lens_shift(
-                proj, verts[:, :, 3], cam.lens.radius, cam.lens.focus_distance
-            )
+        with np.errstate(over="ignore"):  # an overflow is refused just below
+            for t, verts in enumerate((q, r)):
+                lens_x[:, :, t], lens_y[:, :, t] = lens_shift(
+                    proj, verts[:, :, 3], cam.lens.radius, cam.lens.focus_distance
+                )
+        _check_range(f"{where}: camera.lens", "a vertex's lens shift (radius * (w / focus_distance - 1), clip units)",
+                     np.stack([lens_x, lens_y]))
     return Draw(
         q=q,
         r=r,

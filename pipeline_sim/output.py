@@ -21,10 +21,16 @@ from pipeline_sim.output_folder import hold_lock, ordinary_mode, staging_prefix
 
 
 def linear_to_srgb8(image: np.ndarray) -> np.ndarray:
-    """Linear float RGB(A) to 8-bit sRGB RGB (IEC 61966-2-1 transfer curve)."""
-    rgb = np.clip(np.nan_to_num(image[..., :3].astype(np.float64)), 0.0, 1.0)
-    srgb = np.where(rgb <= 0.0031308, 12.92 * rgb, 1.055 * np.power(rgb, 1 / 2.4) - 0.055)
-    return np.round(srgb * 255.0).astype(np.uint8)
+    """Linear float (H, W, 3 or 4) RGB(A) to 8-bit sRGB RGB (IEC 61966-2-1
+    transfer curve), converted a band of rows at a time: the float64
+    temporaries stay small however large the image."""
+    out = np.empty(image.shape[:2] + (3,), np.uint8)
+    rows = max(1, (1 << 18) // max(image.shape[1], 1))
+    for r in range(0, image.shape[0], rows):
+        rgb = np.clip(np.nan_to_num(image[r : r + rows, :, :3].astype(np.float64)), 0.0, 1.0)
+        srgb = np.where(rgb <= 0.0031308, 12.92 * rgb, 1.055 * np.power(rgb, 1 / 2.4) - 0.055)
+        out[r : r + rows] = np.round(srgb * 255.0)
+    return out
 
 
 def write_png(path: Path, image: np.ndarray) -> None:
@@ -34,7 +40,7 @@ def write_png(path: Path, image: np.ndarray) -> None:
 def write_exr(path: Path, image: np.ndarray) -> None:
     """Linear float32 RGBA OpenEXR (ZIP compressed)."""
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    rgba = np.ascontiguousarray(image.astype(np.float32))
+    rgba = np.ascontiguousarray(image, dtype=np.float32)  # no copy of a float32 image
     with OpenEXR.File(header, {"RGBA": rgba}) as f:
         f.write(str(path))
 
@@ -45,7 +51,10 @@ def read_exr(path: Path) -> np.ndarray:
 
 
 def write_json(path: Path, data: dict) -> None:
-    path.write_text(json.dumps(data, indent=2, sort_keys=True, default=_json_default) + "\n")
+    """Strict JSON (RFC 8259): a NaN or infinity is an error here, not a
+    ``NaN`` token other parsers reject; a figure with no finite value is
+    written as null by its source (:func:`finite_or_none`)."""
+    path.write_text(json.dumps(data, indent=2, sort_keys=True, default=_json_default, allow_nan=False) + "\n")
 
 
 def _json_default(obj):
@@ -58,6 +67,13 @@ def _json_default(obj):
     if isinstance(obj, Path):
         return str(obj)
     raise TypeError(f"not JSON serializable: {type(obj)}")
+
+
+def finite_or_none(value: float | None) -> float | None:
+    """``value`` as a float, or None (JSON null) when it has no finite value:
+    a ratio over nothing (STE with no sample tested) or the PSNR of two
+    identical images."""
+    return None if value is None or not np.isfinite(value) else float(value)
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:

@@ -8,10 +8,14 @@ suggested), numbers must be finite (TOML's ``nan`` and ``inf`` are refused),
 and integers must be written as integers (``320``, not ``320.0``).
 
 Coordinates are right-handed with y up, as in OpenGL: the camera looks down
-its -z axis. Colours are linear RGB (components >= 0; values above 1 are
-allowed). Angles are in degrees. Time t runs over the shutter from 0 (open)
-to 1 (close); everything that moves, moves linearly per vertex in world
-space between its shutter-open and shutter-close positions.
+its -z axis. Colours are linear RGB (components from 0 to ``MAX_RADIANCE``
+= 1e8; values above 1 are allowed). Angles are in degrees. Time t runs over
+the shutter from 0 (open) to 1 (close); everything that moves, moves
+linearly per vertex in world space between its shutter-open and
+shutter-close positions. Every vertex's world position, clip coordinate and
+lens shift must lie within +-``MAX_COORDINATE`` = 2^126 (half the float32
+range), as must a point light's position: with these bounds every value the
+pipeline shades, tests and stores is finite.
 
 Format
 ------
@@ -61,8 +65,8 @@ Format
                                  # (default [-0.3, -1.0, -0.5])
     # position = [2.0, 4.0, 3.0] # point only, required
     color = [1.0, 1.0, 1.0]      # default [1, 1, 1]
-    intensity = 1.0              # >= 0, default 1
-    ambient = 0.15               # >= 0, default 0.1
+    intensity = 1.0              # 0 to 1e8, default 1
+    ambient = 0.15               # 0 to 1e8, default 0.1
 
     [[objects]]                  # zero or more
     name = "ball"                # optional, unique; default "object<i>" (i from 0)
@@ -106,17 +110,23 @@ only with ``use_vertex_colors = true`` (parts of a file without them, and
 files without them, get the object's ``color``); textures and materials in
 the file are ignored. Triangles keep the file's winding: counter-clockwise
 is front (a mirroring glTF node transform reverses it, as glTF specifies).
+A file that is not valid in its format is refused on one line saying what
+is wrong with it (not UTF-8 text, a binary header whose sizes do not match
+the file, malformed JSON, an OFF line that is not a vertex or a face).
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
+import logging
 import math
 import re
 import tomllib
-from collections.abc import Callable, Mapping
+import warnings
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -147,8 +157,22 @@ MESH_FORMATS = (".obj", ".ply", ".stl", ".off", ".gltf", ".glb")
 DEFAULT_LIGHT_DIRECTION = (-0.3, -1.0, -0.5)
 DEFAULT_OBJECT_COLOR = (0.8, 0.8, 0.8)
 
-_MAX_IMAGE_SIZE = 16384
-_MAX_SPP = 16384
+#: Largest width, height and samples per pixel of an image.
+IMAGE_LIMITS = {"width": 16384, "height": 16384, "spp": 16384}
+
+#: Largest colour component (objects, background, light), light intensity and
+#: ambient term. The standard shader (``pipeline_sim.shaders``) computes, in
+#: float32, colour * (ambient + light colour * intensity * max(n.l, 0) *
+#: attenuation) with attenuation = 1 / max(d^2, 1e-12) <= 1e12: with each
+#: factor at most 1e8 that is at most 1e8 * (1e8 + 1e8 * 1e8 * 1e12) ~ 1e36,
+#: below the largest finite float32 (3.4e38), so no shaded value overflows.
+MAX_RADIANCE = 1e8
+
+#: Largest magnitude of a coordinate the pipeline computes with (a light
+#: position; a vertex's world position, clip coordinate or lens shift, checked
+#: by ``pipeline_sim.draw.build_draw``): 2^126, half the float32 range, so the
+#: difference of two such coordinates (an edge, a light vector) stays finite.
+MAX_COORDINATE = 2.0**126
 
 
 def _readonly(a: Any, dtype: Any, shape: tuple[int | None, ...]) -> np.ndarray:
@@ -384,9 +408,19 @@ class SceneObject:
         """(V,3) float64 unit world-space normals at shutter time t in [0, 1]
         (inverse-transpose transformed, interpolated linearly, renormalized)."""
         t = _check_time(t)
+        # inv(M) = inv(M D^-1) D^-1 with D the powers of two of M's column
+        # magnitudes: M D^-1 is well conditioned for any scale (1e-300 or
+        # 1e300 included), and n D^-1 is taken relative to the smallest power of
+        # both matrices, one common factor, so the result is (inv(M)^T n^T)^T
+        # times a power of two, exactly, and the interpolation is unchanged
+        def powers(m: np.ndarray) -> np.ndarray:
+            return np.frexp(np.abs(m[:3, :3]).max(axis=0))[1]
+
+        low = min(powers(self.transform_open).min(), powers(self.transform_close).min())
 
         def at(m: np.ndarray) -> np.ndarray:
-            return self.normals @ np.linalg.inv(m[:3, :3])  # == (inv(M)^T n^T)^T
+            e = powers(m)
+            return np.ldexp(self.normals, low - e) @ np.linalg.inv(np.ldexp(m[:3, :3], -e))
 
         n = at(self.transform_open)
         if t != 0.0 and self.moving:
@@ -543,7 +577,19 @@ class _Reader:
         c = self.numbers(v, key, 3)
         if np.any(c < 0.0):
             raise self.error(key, f"colour components must be >= 0, got {_fmt(c)}")
+        if np.any(c > MAX_RADIANCE):
+            raise self.error(key, f"colour components must be <= {MAX_RADIANCE:g} (so that float32 shading "
+                             f"stays finite), got {_fmt(c)}")
         return c
+
+    def radiance(self, v: Any, key: str) -> float:
+        """A light intensity or ambient term: in [0, MAX_RADIANCE]."""
+        x = self.number(v, key)
+        if x < 0.0:
+            raise self.error(key, f"must be >= 0, got {x:g}")
+        if x > MAX_RADIANCE:
+            raise self.error(key, f"must be <= {MAX_RADIANCE:g} (so that float32 shading stays finite), got {x:g}")
+        return x
 
     def choice(self, v: Any, key: str, choices: tuple[str, ...], what: str) -> str:
         s = self.string(v, key)
@@ -763,6 +809,153 @@ def _gltf_buffer_bytes(path: Path) -> bytes:
     return out
 
 
+_FORMAT_NAMES = {".obj": "OBJ", ".ply": "PLY", ".stl": "STL", ".off": "OFF", ".gltf": "glTF", ".glb": "GLB"}
+_STL_HEADER = 84  # binary STL: 80-byte header, uint32 triangle count, then 50 bytes a triangle
+_STL_TRIANGLE = 50
+
+
+def _utf8_problem(data: bytes) -> str | None:
+    """Why ``data`` is not text (UTF-8 without NUL bytes), or None."""
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        return f"not UTF-8 text at byte {e.start} (0x{data[e.start]:02x})"
+    if "\0" in text:
+        return f"not text: a NUL byte at byte {data.index(0)}"
+    return None
+
+
+def _stl_problem(data: bytes) -> str | None:
+    if len(data) >= _STL_HEADER:
+        count = int.from_bytes(data[80:84], "little")
+        if len(data) == _STL_HEADER + _STL_TRIANGLE * count:
+            return None
+        binary = (f"its header gives {count} triangles, {_STL_HEADER + _STL_TRIANGLE * count} bytes, "
+                  f"but the file has {len(data)}")
+    else:
+        binary = f"{len(data)} bytes, shorter than the {_STL_HEADER}-byte header"
+    text = _utf8_problem(data) or (None if data.lstrip()[:5].lower() == b"solid" else "does not start with 'solid'")
+    return None if text is None else f"neither binary STL ({binary}) nor ASCII STL: {text}"
+
+
+def _ply_problem(data: bytes) -> str | None:
+    if not (data.startswith(b"ply\n") or data.startswith(b"ply\r\n")):
+        return "does not start with the line 'ply'"
+    end = data.find(b"end_header")
+    if end < 0:
+        return "no 'end_header' line"
+    problem = _utf8_problem(data[:end])
+    return None if problem is None else f"the header is {problem}"
+
+
+def _glb_problem(data: bytes) -> str | None:
+    if len(data) < 12 or data[:4] != b"glTF":
+        return "does not start with the 12-byte GLB header (magic 'glTF')"
+    version = int.from_bytes(data[4:8], "little")
+    length = int.from_bytes(data[8:12], "little")
+    if version != 2:
+        return f"GLB version {version}, only version 2 is supported"
+    if length != len(data):
+        return f"its header gives a length of {length} bytes but the file has {len(data)}"
+    chunk = int.from_bytes(data[12:16], "little")
+    if data[16:20] != b"JSON" or 20 + chunk > len(data):
+        return "the header is not followed by a whole JSON chunk"
+    problem = _gltf_problem(data[20 : 20 + chunk])
+    return None if problem is None else f"its JSON chunk: {problem}"
+
+
+def _gltf_problem(data: bytes) -> str | None:
+    problem = _utf8_problem(data)
+    if problem is not None:
+        return problem
+    try:
+        doc = json.loads(data.decode("utf-8"))
+    except json.JSONDecodeError as e:
+        return f"not JSON (line {e.lineno}, column {e.colno}: {e.msg})"
+    if not isinstance(doc, dict) or "asset" not in doc:
+        return "the JSON is not a glTF document (no 'asset' object)"
+    return None
+
+
+def _off_problem(data: bytes) -> str | None:
+    """The OFF layout: 'OFF' (or 'COFF'), the vertex and face counts, then
+    that many vertex lines (x y z ...) and face lines (k i1 .. ik ...)."""
+    problem = _utf8_problem(data)
+    if problem is not None:
+        return problem
+    lines = [(n, line.split("#", 1)[0].split()) for n, line in enumerate(data.decode("utf-8").splitlines(), 1)]
+    lines = [(n, words) for n, words in lines if words]
+    if not lines or lines[0][1][0] not in ("OFF", "COFF"):
+        return "does not start with 'OFF'"
+    lines[0] = (lines[0][0], lines[0][1][1:])  # the counts may follow the keyword on its line
+    if not lines[0][1]:
+        del lines[0]
+
+    def shown(words: list[str]) -> str:
+        text = " ".join(words)
+        return f"'{text}'" if len(text) <= 40 else f"'{text[:40]}...'"
+
+    def numbers(words: list[str], kind: type) -> bool:
+        try:
+            for w in words:
+                kind(w)
+        except ValueError:
+            return False
+        return True
+
+    if not lines or len(lines[0][1]) < 2 or not numbers(lines[0][1][:2], int):
+        return "no vertex and face counts after 'OFF'" if not lines else (
+            f"line {lines[0][0]}: expected the vertex and face counts, got {shown(lines[0][1])}")
+    nv, nf = (int(w) for w in lines[0][1][:2])
+    body = lines[1:]
+    if nv < 0 or nf < 0 or len(body) < nv + nf:
+        return f"the counts give {nv} vertices and {nf} faces, but {len(body)} lines follow"
+    for n, words in body[:nv]:
+        if len(words) < 3 or not numbers(words[:3], float):
+            return f"line {n}: expected a vertex (three numbers), got {shown(words)}"
+    for n, words in body[nv:nv + nf]:
+        k = int(words[0]) if numbers(words[:1], int) else 0
+        if k < 3 or len(words) <= k or not numbers(words[1:k + 1], int):
+            return f"line {n}: expected a face (a count k >= 3 and k vertex indices), got {shown(words)}"
+    return None
+
+
+# a format's own check of a file's bytes, before trimesh parses it: trimesh
+# decodes text it cannot read as UTF-8 with an optional dependency (not
+# installed), and its errors on garbage rarely say what is wrong
+_FORMAT_PROBLEM: dict[str, Callable[[bytes], str | None]] = {
+    ".obj": _utf8_problem, ".off": _off_problem, ".stl": _stl_problem, ".ply": _ply_problem,
+    ".glb": _glb_problem, ".gltf": _gltf_problem,
+}
+
+
+@contextlib.contextmanager
+def _quiet_parser() -> Iterator[None]:
+    """Silence what trimesh reports on its own while it parses a bad file (numpy
+    floating-point warnings, Python warnings, log messages to stderr): the
+    loader reports the problem itself, on one line."""
+    logger = logging.getLogger("trimesh")
+    was = logger.disabled
+    logger.disabled = True
+    try:
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            yield
+    finally:
+        logger.disabled = was
+
+
+def _parse_error_detail(e: Exception) -> str:
+    """One line saying what a mesh parser's exception found wrong."""
+    if isinstance(e, KeyError) and e.args:
+        return f"missing entry {e.args[0]!r}"
+    if isinstance(e, UnicodeDecodeError):
+        return f"not UTF-8 text at byte {e.start}"
+    text = str(e).strip()
+    first = text.splitlines()[0] if text else ""
+    return f"{type(e).__name__}: {first}" if first else type(e).__name__
+
+
 def _load_mesh_file(r: _Reader, key: str, written: str, resolved: Path) -> _LoadedMesh:
     import trimesh
 
@@ -777,11 +970,17 @@ def _load_mesh_file(r: _Reader, key: str, written: str, resolved: Path) -> _Load
             key, f"unsupported mesh format '{suffix or resolved.name}' for {shown}; expected one of: {', '.join(MESH_FORMATS)}"
         )
     try:
-        data = resolved.read_bytes() + _gltf_buffer_bytes(resolved)
+        raw = resolved.read_bytes()
+        data = raw + _gltf_buffer_bytes(resolved)
     except OSError as e:
         raise r.error(key, f"cannot read mesh file {shown}: {e.strerror or e}") from None
+    invalid = f"not a valid {_FORMAT_NAMES[suffix]} file {shown}"
+    problem = _FORMAT_PROBLEM[suffix](raw)
+    if problem is not None:
+        raise r.error(key, f"{invalid}: {_printable(problem)}")
     try:
-        loaded = trimesh.load_scene(str(resolved), process=False)
+        with _quiet_parser():
+            loaded = trimesh.load_scene(str(resolved), process=False)
         parts = [
             (np.asarray(loaded.graph[node][0], dtype=np.float64), loaded.geometry[name])
             for node in loaded.graph.nodes_geometry
@@ -789,15 +988,15 @@ def _load_mesh_file(r: _Reader, key: str, written: str, resolved: Path) -> _Load
             if isinstance(loaded.geometry.get(name), trimesh.Trimesh)
         ]
     except Exception as e:  # trimesh raises many kinds on bad files
-        detail = _printable((str(e).strip().splitlines() or [type(e).__name__])[0])
-        raise r.error(key, f"cannot load mesh file {shown}: {detail}") from None
+        raise r.error(key, f"{invalid}: {_printable(_parse_error_detail(e))}") from None
 
     positions, normals, faces, colors = [], [], [], []
     offset = 0
     for transform, part in parts:
         if len(part.faces) == 0:
             continue
-        p, n, f, c = _mesh_part(r, key, shown, part, transform)
+        with _quiet_parser():  # huge or degenerate triangles: _mesh_part keeps their normals finite
+            p, n, f, c = _mesh_part(r, key, shown, part, transform)
         positions.append(p)
         normals.append(n)
         faces.append(f + offset)
@@ -842,7 +1041,11 @@ def _mesh_part(
         raise r.error(key, f"mesh file has non-finite vertex normals: {shown}")
     has_colors = mesh.visual.kind == "vertex"
     if not has_normals and not has_colors:
-        mesh.merge_vertices()  # so that smooth normals can be computed
+        # vertices merged where their positions are equal, so that smooth
+        # normals can be computed (trimesh's merge_vertices rounds through
+        # int64, which overflows for coordinates beyond about 1e10)
+        unique, inverse = np.unique(vertices + 0.0, axis=0, return_inverse=True)  # + 0.0: -0.0 is 0.0
+        mesh = type(mesh)(unique, inverse.reshape(-1)[faces], process=False)
     mesh.remove_unreferenced_vertices()
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64)
@@ -863,8 +1066,8 @@ def _mesh_part(
         if det < 0.0:  # a mirroring node transform reverses the winding (as glTF specifies)
             faces = faces[:, ::-1]
     length = np.linalg.norm(normals, axis=1)
-    zero = ~(length > 1e-12)
-    normals[zero] = (0.0, 0.0, 1.0)  # vertices used only by degenerate triangles
+    zero = ~((length > 1e-12) & (length < np.inf))
+    normals[zero] = (0.0, 0.0, 1.0)  # vertices used only by degenerate triangles (or overflowing normals)
     normals /= np.where(zero, 1.0, length)[:, None]
     return vertices, normals, faces, colors
 
@@ -873,21 +1076,30 @@ def _mesh_part(
 # Sections
 
 
+def check_image_value(name: str, value: Any, where: str) -> int:
+    """``value`` as the image setting ``name`` (width, height, spp or seed):
+    an integer, > 0 and at most ``IMAGE_LIMITS[name]`` (a seed: in [0, 2^64)).
+    Otherwise a :class:`UserError` naming ``where`` (a scene key, a command-line
+    option or a sweep setting): the scene file and every override of it
+    pass this one check."""
+    if type(value) is not int:
+        raise UserError(f"{where}: expected an integer, got {_type_name(value)}")
+    if name == "seed":
+        if not 0 <= value < 2**64:
+            raise UserError(f"{where}: must be in [0, 2^64), got {value}")
+    elif value <= 0:
+        raise UserError(f"{where}: must be > 0, got {value}")
+    elif value > IMAGE_LIMITS[name]:
+        raise UserError(f"{where}: must be <= {IMAGE_LIMITS[name]}, got {value}")
+    return value
+
+
 def _parse_image(r: _Reader, data: dict) -> ImageSettings:
     tbl = r.require_table(data, "image")
     r.check_keys(tbl, "image", ("width", "height", "spp", "seed"))
-    values = {}
-    for name, limit in (("width", _MAX_IMAGE_SIZE), ("height", _MAX_IMAGE_SIZE), ("spp", _MAX_SPP)):
-        key = f"image.{name}"
-        x = r.integer(r.require(tbl, "image", name), key)
-        if x <= 0:
-            raise r.error(key, f"must be > 0, got {x}")
-        if x > limit:
-            raise r.error(key, f"must be <= {limit}, got {x}")
-        values[name] = x
-    seed = r.integer(tbl.get("seed", 0), "image.seed")
-    if not 0 <= seed < 2**64:
-        raise r.error("image.seed", f"must be in [0, 2^64), got {seed}")
+    values = {name: check_image_value(name, r.require(tbl, "image", name), f"{r.ctx}: image.{name}")
+              for name in IMAGE_LIMITS}
+    seed = check_image_value("seed", tbl.get("seed", 0), f"{r.ctx}: image.seed")
     return ImageSettings(seed=seed, **values)
 
 
@@ -1019,21 +1231,20 @@ def _parse_light(r: _Reader, data: dict) -> Light:
         if "position" in tbl:
             raise r.error("light.position", "applies only to point lights; use direction")
         direction = r.numbers(tbl.get("direction", list(DEFAULT_LIGHT_DIRECTION)), "light.direction", 3)
-        length = np.linalg.norm(direction)
-        if length < 1e-12:
+        if not np.any(direction):
             raise r.error("light.direction", "must not be the zero vector")
-        direction = direction / length
+        direction = direction * 2.0 ** -math.frexp(np.abs(direction).max())[1]  # exact; keeps 1e300 in range
+        direction = direction / np.linalg.norm(direction)
     else:
         if "direction" in tbl:
             raise r.error("light.direction", "applies only to directional lights; use position")
         position = r.numbers(r.require(tbl, "light", "position", " for a point light"), "light.position", 3)
+        if np.any(np.abs(position) > MAX_COORDINATE):
+            raise r.error("light.position", f"coordinates must be within +-{MAX_COORDINATE:g} (half the float32 "
+                          f"range), got {_fmt(position)}")
     color = r.color(tbl.get("color", [1.0, 1.0, 1.0]), "light.color")
-    intensity = r.number(tbl.get("intensity", 1.0), "light.intensity")
-    if intensity < 0.0:
-        raise r.error("light.intensity", f"must be >= 0, got {intensity:g}")
-    ambient = r.number(tbl.get("ambient", 0.1), "light.ambient")
-    if ambient < 0.0:
-        raise r.error("light.ambient", f"must be >= 0, got {ambient:g}")
+    intensity = r.radiance(tbl.get("intensity", 1.0), "light.intensity")
+    ambient = r.radiance(tbl.get("ambient", 0.1), "light.ambient")
     return Light(kind=kind, direction=direction, position=position, color=color, intensity=intensity, ambient=ambient)
 
 

@@ -74,7 +74,7 @@ def standard_shader(inputs, params, texture, out):
             ly = params[2] - inputs[IN_PY, i]
             lz = params[3] - inputs[IN_PZ, i]
             d2 = lx * lx + ly * ly + lz * lz
-            atten = np.float32(1.0) / max(d2, np.float32(1e-12))
+            atten = np.float32(1.0) / max(d2, np.float32(1e-12))  # <= 1e12: scene.MAX_RADIANCE's bound needs it
         ln = np.sqrt(lx * lx + ly * ly + lz * lz)
         if ln > 0:
             lx, ly, lz = lx / ln, ly / ln, lz / ln

@@ -210,22 +210,6 @@ def _check_setting_path(where: str, key: str) -> None:
         raise unknown_key_error(f"{where}: [{section}]", name, known)
 
 
-def _check_image_value(where: str, name: str, value: Any) -> None:
-    from pipeline_sim.scene import _MAX_IMAGE_SIZE, _MAX_SPP
-
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise UserError(f"{where}: expected an integer, got {value!r}")
-    if name == "seed":
-        if not 0 <= value < 2**64:
-            raise UserError(f"{where}: must be in [0, 2^64), got {value}")
-        return
-    limit = _MAX_SPP if name == "spp" else _MAX_IMAGE_SIZE
-    if not 1 <= value <= limit:
-        raise UserError(f"{where}: must be from 1 to {limit}, got {value}")
-    if name == "spp" and value & (value - 1):
-        raise UserError(f"{where}: spp = {value} must be a power of two (the default net sample pattern)")
-
-
 def _read_sweep_toml(path: Path, where: str) -> dict[str, Any]:
     try:
         text = path.read_bytes().decode("utf-8")
@@ -276,7 +260,9 @@ def load_sweep(path: str | Path) -> SweepSpec:
     """
     from pipeline_sim.accuracy import METRICS, ReferenceSpec
     from pipeline_sim.config import apply_overrides, arch_from_dict, load_arch, parse_override
-    from pipeline_sim.scene import load_scene
+    from pipeline_sim.draw import build_draw
+    from pipeline_sim.preflight import check_point
+    from pipeline_sim.scene import check_image_value, load_scene
 
     p = Path(path)
     where = str(path)
@@ -303,6 +289,7 @@ def load_sweep(path: str | Path) -> SweepSpec:
         raise UserError(f"{where}: sweep.scene: scene file '{scene_text}' not found (resolved to '{scene_path}')")
     try:
         scene = load_scene(scene_path)
+        build_draw(scene)  # the geometry's own checks, once: points change the image, not the objects
     except UserError as exc:
         raise UserError(f"{where}: sweep.scene: {exc}") from None
 
@@ -377,7 +364,7 @@ def load_sweep(path: str | Path) -> SweepSpec:
         section, name = key.split(".")
         for v in values:
             if section == "image":
-                _check_image_value(f"{loc} = {toml_literal(v)}", name, v)
+                check_image_value(name, v, f"{loc} = {toml_literal(v)}")
                 continue
             try:
                 arch_from_dict({section: {name: v}}, where="--set", base=base)
@@ -422,17 +409,19 @@ def load_sweep(path: str | Path) -> SweepSpec:
             raise UserError(f"{gloc}: a combination of values is listed twice")
         axes.append((tuple(keys), tuples))
 
-    # points: every point's architecture built now, exactly as run_point builds it
+    # points: every point's architecture built now, exactly as run_point builds it, and
+    # its samples and memory checked as `run` checks them
     points: list[dict[str, Any]] = []
-    checked: set[tuple[str, ...]] = set()
+    archs: dict[tuple[str, ...], Any] = {}
+    reference_spp = reference.spp if reference.kind == "pipeline" else 1
     for combo in itertools.product(*(values for _, values in axes)):
         params: dict[str, Any] = {}
         for (keys, _), values in zip(axes, combo):
             params.update(zip(keys, values))
-        _, overrides = _split_params(params)
-        if tuple(overrides) not in checked:
+        image, overrides = _split_params(params)
+        if tuple(overrides) not in archs:
             try:
-                load_arch(arch_path, list(fixed) + overrides)
+                archs[tuple(overrides)] = load_arch(arch_path, list(fixed) + overrides)
             except UserError as exc:
                 for k, v in params.items():  # blame one key when it alone gives this error
                     table, msg = alone_errors.get((k, json.dumps(v)), ("", ""))
@@ -440,7 +429,8 @@ def load_sweep(path: str | Path) -> SweepSpec:
                         raise UserError(f"{where}: {table} {k} = {toml_literal(v)}: "
                                         f"{msg.removeprefix('--set: ')}") from None
                 raise UserError(f"{where}: point {_describe(params)}: {exc}") from None
-            checked.add(tuple(overrides))
+        check_point(scene.replace(image=dataclasses.replace(scene.image, **image)), archs[tuple(overrides)],
+                    f"{where}: point {_describe(params)}", reference_spp=reference_spp)
         points.append(params)
 
     return SweepSpec(
@@ -462,7 +452,8 @@ def _json_text(data: Any, indent: int | None = 2) -> str:
     from pipeline_sim.output import _json_default
 
     seps = None if indent else (",", ":")
-    return json.dumps(data, indent=indent, sort_keys=indent is not None, default=_json_default, separators=seps) + "\n"
+    return json.dumps(data, indent=indent, sort_keys=indent is not None, default=_json_default, separators=seps,
+                      allow_nan=False) + "\n"
 
 
 def _one_line(exc: BaseException) -> str:
@@ -472,7 +463,8 @@ def _one_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
-def _summarize(result: Any, metrics: dict[str, float]) -> dict[str, Any]:
+def _summarize(result: Any, metrics: dict[str, float | None]) -> dict[str, Any]:
+    """The point's summary record (STE None when no sample was tested)."""
     from reports.run_report import headline
 
     hd = headline(result)
@@ -485,13 +477,13 @@ def _summarize(result: Any, metrics: dict[str, float]) -> dict[str, Any]:
         "ops_total": int(c[c.counter.isin(_ARITHMETIC)].value.sum()),
         "samples_tested": int(hd["samples_tested"]),
         "samples_covered": int(hd["samples_covered"]),
-        "ste": float(hd["ste"]),
+        "ste": hd["ste"],
         "shader_executions": int(hd["shader_executions"]),
         "shader_executions_per_pixel": float(hd["shader_executions_per_pixel"]),
         "depth_bytes_per_pixel": float(hd["depth_bytes_per_pixel"]),
         "bottleneck_unit": str(busiest),
     }
-    out.update({k: float(v) for k, v in metrics.items()})
+    out.update(metrics)
     return out
 
 
@@ -524,7 +516,7 @@ def _run_point(spec: dict[str, Any], params: dict[str, Any], out: Path,
     from pipeline_sim.cli import _package_versions
     from pipeline_sim.config import load_arch
     from pipeline_sim.jit import warm_up
-    from pipeline_sim.output import write_json, write_png
+    from pipeline_sim.output import finite_or_none, write_json, write_png
     from pipeline_sim.render import render_scene
     from pipeline_sim.scene import load_scene
 
@@ -542,7 +534,8 @@ def _run_point(spec: dict[str, Any], params: dict[str, Any], out: Path,
     reference = reference_image(scene, ref_spec, cache_dir=out / "reference", arch=arch)
     t1 = time.perf_counter()
     all_metrics = error_metrics(result.image, reference)
-    metrics = {k: all_metrics[k] for k in spec["metrics"]}
+    # an image identical to its reference has an infinite PSNR: null in the records
+    metrics = {k: finite_or_none(all_metrics[k]) for k in spec["metrics"]}
     emap = error_map(result.image, reference)
     t2 = time.perf_counter()
 

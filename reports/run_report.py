@@ -34,8 +34,13 @@ def unit_table(result) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def headline(result) -> dict[str, float]:
-    """The figures every summary shows."""
+def percent(value: float | None, digits: int) -> str:
+    """``value`` (a fraction) as a percentage, or "n/a" when it has none (None or NaN)."""
+    return "n/a" if value is None or value != value else f"{100 * value:.{digits}f}%"
+
+
+def headline(result) -> dict[str, float | None]:
+    """The figures every summary shows; ``ste`` is None when no sample was tested."""
     h, w = result.image.shape[:2]
     tested = result.counter("sample_tester", "samples_tested")
     covered = result.counter("sample_tester", "samples_covered")
@@ -44,7 +49,7 @@ def headline(result) -> dict[str, float]:
         "frame_cycles": result.timing.frame_cycles,
         "samples_tested": tested,
         "samples_covered": covered,
-        "ste": covered / tested if tested else float("nan"),
+        "ste": covered / tested if tested else None,
         "shader_executions": execs,
         "shader_executions_per_pixel": execs / (w * h),
         "depth_bytes_per_pixel": (result.counter("rop", "bytes_read") + result.counter("rop", "bytes_written")) / (w * h),
@@ -65,7 +70,7 @@ def summary_text(result, title: str = "") -> str:
     lines.append(f"dimensions: {dims}   units: {' -> '.join(result.units_used)}{where}")
     lines.append(unit_table(result).to_string(index=False))
     lines.append(
-        f"frame cycles {hd['frame_cycles']:,.0f} | STE {100 * hd['ste']:.1f}% "
+        f"frame cycles {hd['frame_cycles']:,.0f} | STE {percent(hd['ste'], 1)} "
         f"({hd['samples_covered']:,} of {hd['samples_tested']:,} samples) | "
         f"shader executions {hd['shader_executions']:,} ({hd['shader_executions_per_pixel']:.2f}/pixel) | "
         f"wall {hd['wall_time_s']:.2f} s"
@@ -118,7 +123,7 @@ def markdown_report(result, run_info: dict, files_dir: str | Path | None = None)
         "",
         f"- dimensions: motion={result.dimensions['motion']}, lens={result.dimensions['lens']}",
         f"- frame cycles: {hd['frame_cycles']:,.0f}",
-        f"- STE: {100 * hd['ste']:.2f}% ({hd['samples_covered']:,} covered of {hd['samples_tested']:,} tested)",
+        f"- STE: {percent(hd['ste'], 2)} ({hd['samples_covered']:,} covered of {hd['samples_tested']:,} tested)",
         f"- shader executions: {hd['shader_executions']:,} ({hd['shader_executions_per_pixel']:.2f} per pixel)",
         f"- wall time: {hd['wall_time_s']:.2f} s",
         "",
@@ -165,7 +170,7 @@ figure{{margin:1em 0}} figure img{{max-width:100%;height:auto}} figcaption{{font
 <h1>pipeline-sim run: {title}</h1>
 <img alt="rendered image" class="render" src="{img}">
 <ul><li>frame cycles: {hd['frame_cycles']:,.0f}</li>
-<li>STE: {100 * hd['ste']:.2f}% ({hd['samples_covered']:,} covered of {hd['samples_tested']:,} tested)</li>
+<li>STE: {percent(hd['ste'], 2)} ({hd['samples_covered']:,} covered of {hd['samples_tested']:,} tested)</li>
 <li>shader executions: {hd['shader_executions']:,} ({hd['shader_executions_per_pixel']:.2f} per pixel)</li>
 <li>wall time: {hd['wall_time_s']:.2f} s</li></ul>
 <h2>Units</h2>{units}<h2>Queues</h2>{queues}

@@ -797,8 +797,8 @@ BAD_MESHES = {
     "points.obj": (b"v 0 0 0\nv 1 0 0\nv 0 1 0\n", "mesh file has no triangles"),
     "empty.obj": (b"", "mesh file has no triangles"),
     "empty.stl": (b"solid x\nendsolid x\n", "mesh file has no triangles"),
-    "garbage.glb": (b"\x00\x01not a glb file at all" * 10, "cannot load mesh file"),
-    "badindex.obj": (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n", "cannot load mesh file"),
+    "garbage.glb": (b"\x00\x01not a glb file at all" * 10, "not a valid GLB file"),
+    "badindex.obj": (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n", "not a valid OBJ file"),
 }
 
 

@@ -228,11 +228,17 @@ def test_real_kill_then_resume(tmp_path):
 
 def test_failing_point_is_recorded_and_the_others_finish(tmp_path):
     # A shading cache of 2^62 entries is a valid setting (a power of two, a multiple of the
-    # ways) that no machine can allocate: the point fails only when it runs.
+    # ways) that no machine can allocate. Loading the sweep refuses it (its memory estimate),
+    # so it is put into the points after loading, as a stale or hand-made spec would have it:
+    # those points fail only when they run.
+    huge = 4611686018427387904
     sweep = _folder(tmp_path, TINY.replace('"tile_traverser.tile_size" = [8, 16]', "")
-                    + '[[zip]]\n"shading.cache_entries" = [1024, 4611686018427387904]\n'
-                      '"shading.cache_ways" = [8, 1]\n')
+                    + '[[zip]]\n"shading.cache_entries" = [1024, 2048]\n"shading.cache_ways" = [8, 1]\n')
+    with pytest.raises(UserError, match="of memory"):
+        load_sweep(_folder(tmp_path / "refused", sweep.read_text().replace("2048", str(huge))))
     spec = load_sweep(sweep)
+    spec.points = [{**p, "shading.cache_entries": huge} if p["shading.cache_entries"] == 2048 else p
+                   for p in spec.points]
     assert len(spec.points) == 4
     frame = run_sweep(spec, tmp_path / "out", executor="local", workers=2, progress=False)
     points = pd.read_csv(tmp_path / "out" / "points.csv", keep_default_na=False)
@@ -280,7 +286,8 @@ BAD = [
     ('[sweep]\nscene = "scene.toml"\n[grid]\n"tile_traverser.tile_size" = [8, 12]\n',
      "[grid] tile_traverser.tile_size = 12"),
     ('[sweep]\nscene = "scene.toml"\n[grid]\n"rop.blend" = ["replace", "bogus"]\n', 'rop.blend = "bogus"'),
-    ('[sweep]\nscene = "scene.toml"\n[grid]\n"image.spp" = [1, 3]\n', "image.spp = 3"),
+    ('[sweep]\nscene = "scene.toml"\n[grid]\n"image.spp" = [1, 3]\n',
+     "point image.spp=3: spp = 3 must be a power of two"),
     ('[sweep]\nscene = "scene.toml"\n[[zip]]\n"shading.cache_entries" = [256, 1024]\n"shading.cache_ways" = [4]\n',
      "[[zip]] #1: lists must have equal lengths"),
     ('[sweep]\nscene = "scene.toml"\n[grid]\n"shading.cache_entries" = [1024]\n"shading.cache_ways" = [8, 5]\n',

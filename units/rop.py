@@ -3,7 +3,8 @@
 Implements docs/pipeline.md §2.7. Samples arrive in primitive order; each is
 depth-tested against its multisample depth buffer entry with the configured
 function, and on a pass its color is blended (replace, add, min, max) into a
-float RGBA multisample color buffer. Resolve is a box filter over each
+float RGBA multisample color buffer (``add`` saturates at the largest finite
+float32, so that the buffer stays finite however many layers add up). Resolve is a box filter over each
 pixel's samples. After each batch the z-cull boxes of the touched tiles are
 refreshed from the depth buffer.
 
@@ -26,6 +27,7 @@ EV_TESTS, EV_PASSED, EV_SKIPPED, EV_WRITTEN = range(len(EVENTS))
 
 DEPTH_BYTES = 4
 COLOR_BYTES = 16
+F32_MAX = np.float32(np.finfo(np.float32).max)
 
 
 @nb.njit(cache=True)
@@ -67,8 +69,8 @@ def rop_kernel(pix, sidx, z, color, noread, spp, pix0, func, depth_write, blend,
                 color_buf[k, c] = color[i, c]
         else:
             for c in range(4):
-                if blend == 1:
-                    color_buf[k, c] += color[i, c]
+                if blend == 1:  # saturating: the sum of many layers stays a finite float32
+                    color_buf[k, c] = min(max(color_buf[k, c] + color[i, c], -F32_MAX), F32_MAX)
                 elif blend == 2:
                     color_buf[k, c] = min(color_buf[k, c], color[i, c])
                 else:
@@ -168,9 +170,10 @@ class Rop:
         return None, ops, events, traffic
 
     def resolve(self) -> np.ndarray:
-        """Box-filter resolve: the mean of each pixel's samples, (H, W, 4) float32."""
+        """Box-filter resolve: the mean of each pixel's samples, (H, W, 4) float32
+        (the ROP's own image, not a copy: a frame's image can be gigabytes)."""
         self._resolve_region()
-        return self.image.copy()
+        return self.image
 
     def depth_samples(self) -> np.ndarray | None:
         """The frame's per-sample depth, (H, W, spp), after ``resolve``; None

@@ -1,0 +1,209 @@
+"""What a run would refuse, refused before it starts: one validation for every command.
+
+``check``, ``run`` and ``compare`` call :func:`validate_run` right after the
+scene and the architecture are loaded, and a sweep calls :func:`check_point`
+for every point while its file is read: all of it before a numba kernel is
+loaded or compiled, so ``check`` accepts exactly what ``run`` runs, and a
+refusal is one line (a :class:`~pipeline_sim.errors.UserError`) within a
+second or two. Checked:
+
+* the samples: the sample pattern's rule on spp (a power of two for ``net``
+  and ``sobol``; at most, and a divisor of, ``pipeline.interleave_tuples``
+  for ``interleave``); the image limits themselves are the scene loader's
+  (:func:`pipeline_sim.scene.check_image_value`), applied to overrides too;
+* the geometry: :func:`~pipeline_sim.draw.build_draw` (the scene has
+  triangles; coordinates stay within the float32 range the pipeline
+  computes in);
+* memory: :func:`estimate_memory`, an upper bound of what the run adds to
+  the process from its settings alone, against :func:`available_memory`.
+
+The memory a run takes is the sum of terms, each from the settings: the
+per-triangle tables (the draw and triangle setup's constants); the samples
+and multisample buffers of one screen region (``pipeline.region_samples``
+caps them); the work in flight between units (a triangle batch's tiles, a
+tile batch's covered samples); z-cull's boxes over the whole frame; the
+shading cache; the resolved image with the files written from it; and a
+constant for compiling the kernels and drawing the report's figures. The
+per-item sizes are the arrays' own (:data:`BYTES`), with the transient
+copies a step holds while it replaces one array by another;
+``tests/test_preflight.py`` checks the estimate against the peak resident
+memory of real runs.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from pipeline_sim.config import ArchConfig
+from pipeline_sim.errors import UserError
+from pipeline_sim.regions import plan_regions, row_step
+
+if TYPE_CHECKING:
+    from pipeline_sim.draw import Draw
+    from pipeline_sim.scene import Scene
+
+GIB = 1 << 30
+
+#: Bytes per item of each term of :func:`estimate_memory`.
+BYTES = {
+    # the draw (clip vertices at t=0 and t=1, lens shifts, world positions and
+    # normals, colours: ~480 B) and triangle setup's table (~1.1 KB), with
+    # the binning's triangle lists
+    "triangle": 2000,
+    # a sample (x, y, u, v, t float32 and a tuple index) in the three most
+    # recent regions' sample sets (3 x 21 B), the sample tester's two
+    # tile-major copies of the current region, twice while one replaces the
+    # other (4 x 21 B), the ROP's depth and colour, twice likewise (2 x 20 B),
+    # and z-cull's box index (1 B)
+    "region_sample": 3 * 21 + 4 * 21 + 2 * 20 + 1,
+    # a tile record out of the tile traverser (triangle, x, y: 3 x int32)
+    "tile_record": 12,
+    # a covered-sample record out of the sample tester (triangle, pixel,
+    # sample, depth, three barycentrics, noread: 29 B), written and then
+    # copied to its exact size
+    "sample_record": 2 * 29,
+    # a tile of the frame in z-cull: zmin and zmax per (t, u, v) box
+    # (float32 each, boxes counted below), and its refresh state (9 B)
+    "zcull_box": 2 * 4,
+    "zcull_tile": 9,
+    # a shading-cache entry: tag, stamp (int64), request (int32), RGBA float32
+    "cache_entry": 8 + 8 + 4 + 16,
+    # a pixel: the ROP's resolved float32 RGBA image, and the 8-bit sRGB
+    # copies of the files written from it (the PNG's array and its image,
+    # the report's embedded PNG and its base64 text) and their encoders'
+    # buffers
+    "pixel": 16 + 16,
+}
+#: Compiling the kernels (on a machine's first run; loading them from the
+#: cache takes less), SimPy's traces, pandas tables and the report's figures.
+FIXED_BYTES = 256 << 20
+
+
+@dataclass(frozen=True)
+class MemoryEstimate:
+    """An upper bound of the bytes a run adds to the process, by term."""
+
+    parts: dict[str, int]
+
+    @property
+    def total(self) -> int:
+        return sum(self.parts.values())
+
+    def describe(self) -> str:
+        """The three largest terms, e.g. ``image 8.0 GiB, z-cull 2.1 GiB, region samples 0.7 GiB``."""
+        big = sorted(self.parts.items(), key=lambda kv: -kv[1])[:3]
+        return ", ".join(f"{name} {_gib(v)}" for name, v in big)
+
+
+def _gib(n: float) -> str:
+    return f"{n / GIB:.1f} GiB" if n >= GIB / 10 else f"{n / (1 << 20):.0f} MiB"
+
+
+def estimate_memory(width: int, height: int, spp: int, triangles: int, arch: ArchConfig, *,
+                    images: int = 1) -> MemoryEstimate:
+    """An upper bound of the memory a run of these settings adds to the process,
+    holding ``images`` resolved images at once (``compare`` keeps one per algorithm)."""
+    conservative = arch.pipeline.mode == "conservative"
+    ts = 1 if conservative else arch.tile_traverser.tile_size
+    spp = 1 if conservative else spp
+    cached = arch.shading.mode == "cache" and not conservative
+    step = row_step(ts, arch.tile_traverser.coarse_factor, arch.shading.shading_rate if cached else None)
+    plan = plan_regions(width, height, spp, arch.pipeline.region_samples, step)
+    rows = min(plan.rows, height)
+    region_samples = rows * width * spp
+    region_tiles = math.ceil(rows / ts) * math.ceil(width / ts)
+    pcfg = arch.pipeline
+    # in flight: one triangle batch's tile records, each of its triangles
+    # reaching at most every tile of the region; one tile batch's covered
+    # samples, at most its tiles' samples and at most a region's
+    tiles = pcfg.triangles_per_batch * region_tiles * BYTES["tile_record"]
+    samples = min(pcfg.tiles_per_batch * ts * ts * spp, region_samples) * BYTES["sample_record"]
+    # z-cull's boxes cover the whole frame, as many per tile as motion and a
+    # lens may need (the estimate does not know yet whether the draw has them)
+    boxes = arch.zcull.time_slices * arch.zcull.lens_boxes**2
+    frame_tiles = math.ceil(height / ts) * math.ceil(width / ts)
+    parts = {
+        "triangles": triangles * BYTES["triangle"],
+        "region samples": region_samples * BYTES["region_sample"],
+        "in flight": tiles + samples,
+        "z-cull": frame_tiles * (boxes * BYTES["zcull_box"] + BYTES["zcull_tile"]),
+        "shading cache": arch.shading.cache_entries * BYTES["cache_entry"],  # allocated in every mode
+        "image": images * width * height * BYTES["pixel"],
+        "kernels and reports": FIXED_BYTES,
+    }
+    return MemoryEstimate(parts)
+
+
+def available_memory() -> int:
+    """Bytes this process may still take: the system's available memory, or
+    less when a cgroup (v2) memory limit leaves less."""
+    import psutil
+
+    free = psutil.virtual_memory().available
+    try:
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        used = int(Path("/sys/fs/cgroup/memory.current").read_text())
+    except (OSError, ValueError):
+        return free
+    return free if limit == "max" else min(free, int(limit) - used)
+
+
+def check_samples(spp: int, arch: ArchConfig, where: str) -> None:
+    """The sample pattern's rule on ``spp`` (not applied in conservative mode,
+    which takes one sample per pixel)."""
+    if arch.pipeline.mode == "conservative":
+        return
+    pattern = arch.pipeline.sample_pattern
+    if pattern in ("net", "sobol") and spp & (spp - 1):
+        raise UserError(f"{where}: spp = {spp} must be a power of two for the '{pattern}' sample pattern "
+                        "(pipeline.sample_pattern)")
+    n = arch.pipeline.interleave_tuples
+    if pattern == "interleave" and (spp > n or n % spp):
+        raise UserError(f"{where}: spp = {spp} must divide pipeline.interleave_tuples = {n} for the "
+                        "'interleave' sample pattern")
+
+
+def check_memory(estimate: MemoryEstimate, where: str, what: str) -> None:
+    """Refuse a run whose estimate exceeds the available memory."""
+    have = available_memory()
+    if estimate.total > have:
+        raise UserError(f"{where}: {what} needs about {_gib(estimate.total)} of memory ({estimate.describe()}), "
+                        f"more than the {_gib(have)} available")
+
+
+def check_point(scene: Scene, arch: ArchConfig, where: str, *, images: int = 1,
+                reference_spp: int | None = None) -> None:
+    """Everything but the geometry: the samples and the memory of a run of
+    ``scene``'s image settings with ``arch`` holding ``images`` resolved images
+    (and of its reference rendered at ``reference_spp``, if given)."""
+    from pipeline_sim.accuracy import _reference_arch
+
+    img = scene.image
+    check_samples(img.spp, arch, where)
+    runs = [(img.spp, arch, f"a {img.width}x{img.height} frame at {img.spp} spp")]
+    if reference_spp is not None:
+        runs.append((reference_spp, _reference_arch(arch), f"the reference at {reference_spp} spp"))
+    for spp, a, what in runs:
+        estimate = estimate_memory(img.width, img.height, spp, scene.triangle_count, a, images=images)
+        check_memory(estimate, where, f"{what} of {scene.triangle_count:,} triangles")
+
+
+def validate_run(scene: Scene, archs: Sequence[ArchConfig], where: str, *,
+                 reference_spp: int | None = None) -> Draw:
+    """Refuse (a :class:`UserError` naming ``where``) what a run of ``scene``
+    with each of ``archs`` (one per render: ``compare`` has one per algorithm)
+    would refuse later; return the draw it renders."""
+    from pipeline_sim.draw import build_draw
+
+    images = len(archs) + (reference_spp is not None)
+    for i, arch in enumerate(archs):
+        check_point(scene, arch, where, images=images, reference_spp=reference_spp if i == 0 else None)
+    return build_draw(scene)
+
+
+__all__ = ["BYTES", "FIXED_BYTES", "MemoryEstimate", "available_memory", "check_memory", "check_point",
+           "check_samples", "estimate_memory", "validate_run"]
