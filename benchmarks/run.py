@@ -679,16 +679,15 @@ def report(results: dict) -> tuple[str, list[dict]]:
 
 
 def to_jsonable(o):
+    """Plain JSON values; a float with no finite value is null (strict JSON has no NaN)."""
     if isinstance(o, dict):
         return {str(k): to_jsonable(v) for k, v in o.items()}
     if isinstance(o, (list, tuple)):
         return [to_jsonable(v) for v in o]
     if isinstance(o, (np.integer,)):
         return int(o)
-    if isinstance(o, (np.floating,)):
-        return float(o)
-    if isinstance(o, float) and not np.isfinite(o):
-        return None
+    if isinstance(o, (float, np.floating)):
+        return float(o) if np.isfinite(o) else None
     return o
 
 
@@ -756,7 +755,7 @@ def main(argv: list[str] | None = None) -> int:
 
     text, rows = report(results)
     print(text)
-    (outdir / "results.json").write_text(json.dumps(to_jsonable(results), indent=2))
+    (outdir / "results.json").write_text(json.dumps(to_jsonable(results), indent=2, allow_nan=False))
     with open(outdir / "results.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=["section", "metric", "value", "unit", "note"])
         w.writeheader()

@@ -180,13 +180,13 @@ def check_point(scene: Scene, arch: ArchConfig, where: str, *, images: int = 1,
     """Everything but the geometry: the samples and the memory of a run of
     ``scene``'s image settings with ``arch`` holding ``images`` resolved images
     (and of its reference rendered at ``reference_spp``, if given)."""
-    from pipeline_sim.accuracy import _reference_arch
+    from pipeline_sim.config import reference_arch
 
     img = scene.image
     check_samples(img.spp, arch, where)
     runs = [(img.spp, arch, f"a {img.width}x{img.height} frame at {img.spp} spp")]
     if reference_spp is not None:
-        runs.append((reference_spp, _reference_arch(arch), f"the reference at {reference_spp} spp"))
+        runs.append((reference_spp, reference_arch(arch), f"the reference at {reference_spp} spp"))
     for spp, a, what in runs:
         estimate = estimate_memory(img.width, img.height, spp, scene.triangle_count, a, images=images)
         check_memory(estimate, where, f"{what} of {scene.triangle_count:,} triangles")
