@@ -138,9 +138,7 @@ MEASURE = """
 import json, resource, sys
 import psutil
 from pipeline_sim.cli import _load_inputs, build_parser, main
-from pipeline_sim.jit import warm_up
 from pipeline_sim.preflight import estimate_memory
-warm_up()   # every kernel compiled or loaded first: what a cold cache costs is the estimate's fixed part
 argv = {argv!r}
 args = build_parser().parse_args(argv)
 scene, arch = _load_inputs(args)
