@@ -352,7 +352,7 @@ def test_timeline_bins_long_traces(tiny_result):
     for ch, ser in t.queue_series.items():
         edges, mean, mx = F.bin_series(ser, t.frame_cycles, 40)
         assert np.isclose((mean * np.diff(edges)).sum() / t.frame_cycles,
-                          t.queues.set_index("channel").loc[ch, "mean_occupancy"], rtol=1e-6, atol=1e-9)
+                          t.queues.set_index("channel").loc[ch, "mean_records"], rtol=1e-6, atol=1e-9)
         assert mx.max() == max(level for _, level in ser)
         assert np.all(mean <= mx + 1e-9)
     fig = F.timeline(t.traces, t.queue_series, t.frame_cycles, max_segments=5, bins=100)

@@ -6,8 +6,11 @@ boxes of (t, u, v) space. A (triangle, tile) record whose nearest depth z^lo
 lies behind zmax in every box its intervals touch cannot pass the depth test
 anywhere and is culled; one whose farthest depth z^hi lies in front of zmin
 in every touched box passes everywhere, so the ROP needs no depth reads for
-it. The ROP refreshes a tile's boxes from the depth buffer after writing it;
-a stale box only makes the test looser, never wrong.
+it. The ROP refreshes a tile's boxes from the depth buffer after writing it
+(``ZCull.refresh``, the one path from the ROP to z-cull; its work is charged
+to the ROP); a stale box only makes the test looser, never wrong. Which
+refreshes a test sees depends on how far the ROP has got by then, so what
+z-cull culls can move with the timing (``TIMING_DEPENDENT``).
 """
 
 from __future__ import annotations
@@ -19,8 +22,15 @@ import numpy as np
 
 from pipeline_sim.counters import N_OPS, OP_CMP, OP_MUL
 
-EVENTS = ("tiles_culled", "tiles_no_depth_read", "box_lookups", "tile_refreshes")
-EV_CULLED, EV_NOREAD, EV_LOOKUPS, EV_REFRESH = range(len(EVENTS))
+EVENTS = ("tiles_culled", "tiles_no_depth_read", "box_lookups")
+EV_CULLED, EV_NOREAD, EV_LOOKUPS = range(len(EVENTS))
+# counters timing can move (docs/pipeline.md §4): what it culls and lets skip depth reads depends on the
+# refreshes that reached it; the lookups (and their arithmetic and bytes) follow each record's intervals only
+TIMING_DEPENDENT = ("records_out", "tiles_culled", "tiles_no_depth_read")
+# the work of a refresh: tiles touched, tiles rescanned, depth samples read by the rescans,
+# comparisons of a replaced depth with its box's zmax
+REFRESH_WORK = ("tiles", "scans", "samples_read", "checks")
+RF_TILES, RF_SCANS, RF_READ, RF_CHECKS = range(len(REFRESH_WORK))
 
 # depth functions for which zmax culling is valid
 CULL_LESS, CULL_LEQUAL, CULL_NONE = 0, 1, 2
@@ -89,23 +99,27 @@ def _sample_box(t, u, v, nt, nl):
 
 @nb.njit(cache=True)
 def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st, su, sv, depth, zmax, exact, slot,
-                   box_of, events):
-    """Set zmax of every tile touched by ``pix`` to the largest depth of each box's samples.
+                   box_of, work):
+    """Set zmax of every tile touched by ``pix`` to the largest depth of each box's samples
+    (Nilsson12 §3: the ROP keeps z-cull's per-tile bounds up to date).
 
     A box that holds no sample gets -inf: nothing there can be covered. The
     first refresh of a tile from this depth buffer (``exact`` 0) also records
     each sample's box in ``box_of``. Depths only decrease under a LESS/LEQUAL
     test, so a tile's boxes can only have changed where a record replaced a
     depth (``prior``; NaN: none) not below its box's zmax; other tiles keep
-    theirs, which are exactly what a rescan would give. Depths only decreasing
-    also makes a zmax read before later writes land an upper bound. (zmin is
-    kept by the z-cull test itself, see ``zcull_kernel``.)"""
+    theirs, which are exactly what a rescan would give, and are not read.
+    Depths only decreasing also makes a zmax read before later writes land an
+    upper bound. (zmin is kept by the z-cull test itself, see
+    ``zcull_kernel``.) ``work`` gets the refresh's work, laid out as
+    ``REFRESH_WORK``."""
     n = pix.shape[0]
     touched = np.empty(n, np.int64)
     stale = np.empty(n, np.bool_)
     n_touched = 0
     last_pix = -1
     tile = 0
+    checks = 0
     for i in range(n):
         if pix[i] != last_pix:  # a pixel's samples come together: divide once per pixel
             last_pix = pix[i]
@@ -117,23 +131,30 @@ def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st,
             n_touched += 1
             slot[tile] = n_touched
         j = slot[tile] - 1
-        if not stale[j] and prior[i] >= zmax[tile, box_of[pix[i] * spp + sidx[i]]]:
-            stale[j] = True
+        if not stale[j]:
+            checks += 1
+            if prior[i] >= zmax[tile, box_of[pix[i] * spp + sidx[i]]]:
+                stale[j] = True
+    work[RF_CHECKS] += checks
+    work[RF_TILES] += n_touched
     height_px = depth.shape[0] // (width * spp)
     for j in range(n_touched):
         tile = touched[j]
         slot[tile] = 0
-        events[EV_REFRESH] += 1
         if not stale[j]:
             continue
+        work[RF_SCANS] += 1
         fresh = exact[tile] == 0
         exact[tile] = 1
         zrow = zmax[tile]
         zrow[:] = -np.inf
         tyy = tile // tiles_x
         txx = tile - tyy * tiles_x
+        x0 = txx * tile_size
+        x1 = min(x0 + tile_size, width)
         for py in range(tyy * tile_size, min((tyy + 1) * tile_size, height_px)):
-            for px in range(txx * tile_size, min((txx + 1) * tile_size, width)):
+            work[RF_READ] += (x1 - x0) * spp
+            for px in range(x0, x1):
                 base = (py * width + px) * spp
                 if fresh:  # a loop of its own: fused with the one below it runs about 4x slower
                     for k in range(base, base + spp):
@@ -150,6 +171,7 @@ class ZCull:
 
     name = "zcull"
     events = EVENTS
+    timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, depth_func: str, tile_size: int, width: int, height: int, clear_depth: float,
                  motion: bool = True, lens: bool = True):
@@ -193,10 +215,12 @@ class ZCull:
             out["noread"] = noread[keep]  # depth reads this tile's samples can skip
         return out, ops, events
 
-    def refresh(self, pix: np.ndarray, sidx: np.ndarray, prior: np.ndarray, samples, depth: np.ndarray,
-                events: np.ndarray) -> None:
-        """Refresh the boxes of the tiles touched by the samples ``pix, sidx`` (called by
-        the ROP after each batch; ``prior``: the depth each one replaced, NaN: none)."""
+    def refresh(self, pix: np.ndarray, sidx: np.ndarray, prior: np.ndarray, samples, depth: np.ndarray
+                ) -> np.ndarray:
+        """Refresh the boxes of the tiles touched by the samples ``pix, sidx`` from the ROP's
+        ``depth`` (``prior``: the depth each one replaced, NaN: none); returns the work done,
+        laid out as ``REFRESH_WORK``. Called through ``Rop.refresh_zcull`` only."""
+        work = np.zeros(len(REFRESH_WORK), np.int64)
         if self.active and len(pix):
             if self._buffer is None or self._buffer() is not depth:
                 # a new depth buffer (the next screen region): its tiles start with a full scan
@@ -209,4 +233,5 @@ class ZCull:
             local = pix - samples.row0 * self.width if samples.row0 else pix
             refresh_kernel(local, sidx, prior, self.width, samples.spp, self.tile_size, self.tiles_x, self.nt,
                            self.nl, samples.t, samples.u, samples.v, depth, self.zmax[first:], self.exact[first:],
-                           self.slot[first:], self.box_of, events)
+                           self.slot[first:], self.box_of, work)
+        return work
