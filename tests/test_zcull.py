@@ -93,10 +93,11 @@ def reference_image(scene):
     return res
 
 
+@pytest.mark.parametrize("refresh", ["timed", "ordered"])
 @pytest.mark.parametrize("func", ["less", "lequal"])
-def test_zcull_on_off_bit_identical_and_culls(scene, func):
+def test_zcull_on_off_bit_identical_and_culls(scene, func, refresh):
     off = render_with(scene, ["zcull.enabled=false", f"rop.depth_test={func}"])
-    on = render_with(scene, [f"rop.depth_test={func}"])
+    on = render_with(scene, [f"rop.depth_test={func}"], zcull_refresh=refresh)
     assert "zcull" in on.units_used
     np.testing.assert_array_equal(on.image, off.image)
     np.testing.assert_array_equal(on.depth, off.depth)
@@ -156,11 +157,12 @@ def _tile_samples(table, samples, tri, tx, ty, ts):
     return out
 
 
+@pytest.mark.parametrize("refresh", ["timed", "ordered"])
 @pytest.mark.parametrize("func", ["less", "lequal"])
-def test_culled_records_cannot_pass_depth_test(monkeypatch, scene, func):
+def test_culled_records_cannot_pass_depth_test(monkeypatch, scene, func, refresh):
     calls = _capture(monkeypatch)
     arch = load_arch(overrides=BASE + [f"rop.depth_test={func}"])
-    res = run_pass(RenderPass(draw=scene, arch=arch, spp=SPP))
+    res = run_pass(RenderPass(draw=scene, arch=arch, spp=SPP, zcull_refresh=refresh))
     ts = arch.tile_traverser.tile_size
     setup = TriangleSetup(arch.triangle_setup, scene, ts)
     setup.run(np.arange(scene.n, dtype=np.int64))
@@ -243,8 +245,9 @@ def test_refresh_matches_brute_force_after_every_batch(func, depth_write, slices
     """Many small batches over few tiles and depth levels (ties, +0 and -0): after
     each batch, the touched tiles' boxes are those of a full scan of the depth
     buffer, bit for bit, and every other tile's are unchanged. The depth read
-    is that of scanning a tile when first refreshed and after that whenever a
-    depth not below its box's zmax was replaced: its samples, four bytes each."""
+    is that of scanning a tile when first refreshed, and after that the boxes
+    where a depth not below their zmax was replaced: their samples, four
+    bytes each."""
     rng = np.random.default_rng(slices * 10 + boxes + rows + depth_write)
     w, h, spp, ts = 10, 12, 4, 4
     arch = load_arch()
@@ -277,13 +280,15 @@ def test_refresh_matches_brute_force_after_every_batch(func, depth_write, slices
             for tile in touched:
                 mine = [k for k in range((r1 - r0) * w * spp)
                         if ((k // spp) // w // ts) * zcull.tiles_x + (k // spp) % w // ts == tile - t0]
-                changed = any(old >= before[tile, box[(p - r0 * w) * spp + si]]
-                              for p, si, old in zip(pix, batch["sidx"], request[2])
-                              if (p // w // ts) * zcull.tiles_x + p % w // ts == tile)
-                if tile not in scanned or changed:
+                if tile in scanned:  # the boxes where a depth not below their zmax was replaced
+                    stale = {box[(p - r0 * w) * spp + si] for p, si, old in zip(pix, batch["sidx"], request[2])
+                             if (p // w // ts) * zcull.tiles_x + p % w // ts == tile
+                             and old >= before[tile, box[(p - r0 * w) * spp + si]]}
+                else:  # a tile's first refresh reads all of it
+                    stale = set(box[k] for k in mine)
                     scanned.add(tile)
-                    scans += 1
-                    read += len(mine)
+                scans += bool(stale)
+                read += sum(box[k] in stale for k in mine)
             assert events[rop_mod.EV_REFRESH_SCANS] == scans
             assert nbytes == 4 * read
             expect = before.copy()

@@ -27,8 +27,8 @@ EV_CULLED, EV_NOREAD, EV_LOOKUPS = range(len(EVENTS))
 # counters timing can move (docs/pipeline.md §4): what it culls and lets skip depth reads depends on the
 # refreshes that reached it; the lookups (and their arithmetic and bytes) follow each record's intervals only
 TIMING_DEPENDENT = ("records_out", "tiles_culled", "tiles_no_depth_read")
-# the work of a refresh: tiles touched, tiles rescanned, depth samples read by the rescans,
-# comparisons of a replaced depth with its box's zmax
+# the work of a refresh: tiles touched, tiles rescanned (all boxes of a tile's first refresh, else those
+# a write may have lowered), depth samples read by the rescans, comparisons of a replaced depth with its box's zmax
 REFRESH_WORK = ("tiles", "scans", "samples_read", "checks")
 RF_TILES, RF_SCANS, RF_READ, RF_CHECKS = range(len(REFRESH_WORK))
 
@@ -100,48 +100,59 @@ def _sample_box(t, u, v, nt, nl):
 @nb.njit(cache=True)
 def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st, su, sv, depth, zmax, exact, slot,
                    box_of, work):
-    """Set zmax of every tile touched by ``pix`` to the largest depth of each box's samples
+    """Set zmax of every box of the tiles touched by ``pix`` to the largest depth of its samples
     (Nilsson12 §3: the ROP keeps z-cull's per-tile bounds up to date).
 
     A box that holds no sample gets -inf: nothing there can be covered. The
-    first refresh of a tile from this depth buffer (``exact`` 0) also records
-    each sample's box in ``box_of``. Depths only decrease under a LESS/LEQUAL
-    test, so a tile's boxes can only have changed where a record replaced a
-    depth (``prior``; NaN: none) not below its box's zmax; other tiles keep
-    theirs, which are exactly what a rescan would give, and are not read.
-    Depths only decreasing also makes a zmax read before later writes land an
-    upper bound. (zmin is kept by the z-cull test itself, see
+    first refresh of a tile from this depth buffer (``exact`` 0) reads all of
+    it and records each sample's box in ``box_of``. After that, depths only
+    decrease under a LESS/LEQUAL test, so a box's largest depth can only have
+    changed where a record replaced a depth (``prior``; NaN: none) not below
+    the box's zmax: only those boxes need their samples read (the work
+    counted); the others keep their zmax, which is exactly what a rescan
+    gives, and tiles with no such box are not rescanned. Depths only
+    decreasing also makes a zmax read before later writes land an upper
+    bound. (zmin is kept by the z-cull test itself, see
     ``zcull_kernel``.) ``work`` gets the refresh's work, laid out as
     ``REFRESH_WORK``."""
     n = pix.shape[0]
+    nbox = zmax.shape[1]
     touched = np.empty(n, np.int64)
-    stale = np.empty(n, np.bool_)
+    # per touched tile, the boxes to rescan: all of a tile's first refresh, else those a write may have lowered
+    stale = np.empty((n, nbox), np.bool_)  # rows filled as tiles are first touched
     n_touched = 0
+    checks = 0
     last_pix = -1
     tile = 0
-    checks = 0
+    j = 0
+    base = 0
+    first = False
     for i in range(n):
         if pix[i] != last_pix:  # a pixel's samples come together: divide once per pixel
             last_pix = pix[i]
             py = last_pix // width
             tile = (py // tile_size) * tiles_x + (last_pix - py * width) // tile_size
-        if slot[tile] == 0:
-            touched[n_touched] = tile
-            stale[n_touched] = exact[tile] == 0
-            n_touched += 1
-            slot[tile] = n_touched
-        j = slot[tile] - 1
-        if not stale[j]:
+            first = exact[tile] == 0
+            if slot[tile] == 0:
+                touched[n_touched] = tile
+                stale[n_touched, :] = first
+                n_touched += 1
+                slot[tile] = n_touched
+            j = slot[tile] - 1
+            base = last_pix * spp
+        if not first:
             checks += 1
-            if prior[i] >= zmax[tile, box_of[pix[i] * spp + sidx[i]]]:
-                stale[j] = True
+            b = box_of[base + sidx[i]]
+            if prior[i] >= zmax[tile, b]:
+                stale[j, b] = True
     work[RF_CHECKS] += checks
     work[RF_TILES] += n_touched
     height_px = depth.shape[0] // (width * spp)
     for j in range(n_touched):
         tile = touched[j]
         slot[tile] = 0
-        if not stale[j]:
+        mask = stale[j]
+        if not mask.any():
             continue
         work[RF_SCANS] += 1
         fresh = exact[tile] == 0
@@ -152,18 +163,22 @@ def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st,
         txx = tile - tyy * tiles_x
         x0 = txx * tile_size
         x1 = min(x0 + tile_size, width)
+        read = 0
         for py in range(tyy * tile_size, min((tyy + 1) * tile_size, height_px)):
-            work[RF_READ] += (x1 - x0) * spp
-            for px in range(x0, x1):
-                base = (py * width + px) * spp
-                if fresh:  # a loop of its own: fused with the one below it runs about 4x slower
-                    for k in range(base, base + spp):
-                        box_of[k] = _sample_box(st[k], su[k], sv[k], nt, nl)
-                for k in range(base, base + spp):
-                    d = depth[k]
-                    b = box_of[k]
-                    if d > zrow[b]:
-                        zrow[b] = d
+            k0 = (py * width + x0) * spp
+            k1 = (py * width + x1) * spp
+            if fresh:  # a loop of its own: fused with the one below it runs about 4x slower
+                for k in range(k0, k1):
+                    box_of[k] = _sample_box(st[k], su[k], sv[k], nt, nl)
+            # every box is recomputed (those not stale come out as they were): no branch per
+            # sample; only the stale boxes' samples count as read
+            for k in range(k0, k1):
+                d = depth[k]
+                b = box_of[k]
+                read += mask[b]
+                if d > zrow[b]:
+                    zrow[b] = d
+        work[RF_READ] += read
 
 
 class ZCull:
