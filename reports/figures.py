@@ -319,12 +319,12 @@ def queue_capacities(queues: pd.DataFrame) -> dict[str, float]:
 
 
 def _count(v: float) -> str:
-    """An occupancy, short, three significant digits from a thousand up: ``990``, ``2.05k``, ``262k``."""
+    """An occupancy, short, to three significant digits: ``0.53``, ``126``, ``2.05k``, ``262k``."""
     v = float(v)
     for scale, suffix in ((1e6, "M"), (1e3, "k")):
-        if v >= scale:
+        if v >= 0.9995 * scale:  # what rounds to three digits at this scale
             return f"{v / scale:.3g}{suffix}"
-    return f"{v:.0f}" if v.is_integer() else f"{v:.2f}"
+    return f"{v:.0f}" if v.is_integer() else f"{v:.3g}"
 
 
 def pipeline_diagram(units: pd.DataFrame, queues: pd.DataFrame, *, title: str | None = None,
