@@ -158,8 +158,8 @@ class Rop:
             self.frame_depth[self.pix0 * self.spp : r1 * self.width * self.spp] = self.depth
 
     def run(self, batch: dict[str, np.ndarray]) -> tuple[tuple | None, np.ndarray, np.ndarray, np.ndarray]:
-        """Depth-test and blend a batch; returns its z-cull refresh request (None without z-cull:
-        give it to ``refresh_zcull``), arithmetic, events and traffic (bytes read, written)."""
+        """Depth-test and blend a batch. Returns its z-cull refresh request (for ``refresh_zcull``;
+        None without z-cull), arithmetic, events and traffic (bytes read, written)."""
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
         traffic = np.zeros(2, np.int64)
