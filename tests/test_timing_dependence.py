@@ -116,6 +116,18 @@ def test_ordered_refresh_moves_no_counter(scene, timed):
     assert len(cycles) > 5  # the timing did change
 
 
+def test_ordered_refresh_over_screen_regions(scene, timed):
+    """Region by region (each triangle batch belongs to one), the ordered refresh gives
+    the same image and still no counter that moves with the timing."""
+    regions = ["pipeline.region_samples=40000"]
+    a = render_scene(scene, load_arch(overrides=regions), spp=SPP, zcull_refresh="ordered")
+    b = render_scene(scene, load_arch(overrides=regions + ["pipeline.queue_depth=32", "tile_test.throughput=0.05"]),
+                     spp=SPP, zcull_refresh="ordered")
+    assert a.region_info["count"] > 5
+    np.testing.assert_array_equal(a.image, timed[()].image)
+    assert a.counters.equals(b.counters) and a.counter("zcull", "tiles_culled") > 0
+
+
 def _zmax_by_triangle_batch(scene, arch, refresh, monkeypatch):
     """Per triangle batch, z-cull's zmax boxes at each of its z-cull calls."""
     seen: dict[int, list[np.ndarray]] = {}
