@@ -95,7 +95,7 @@ def recording(script: Script):
 
 def _empty_timing() -> TimingResult:
     units = pd.DataFrame(columns=["unit", "busy", "starved", "blocked", "batches", "utilization"])
-    queues = pd.DataFrame(columns=["channel", "depth", "mean_occupancy", "peak_occupancy"])
+    queues = pd.DataFrame(columns=["channel", "capacity_records", "mean_records", "peak_records"])
     # the remaining fields (traces, queue_series, ...) are per-unit / per-channel dicts
     kw = {"frame_cycles": 0.0, "units": units, "queues": queues}
     for f in dataclasses.fields(TimingResult):

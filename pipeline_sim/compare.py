@@ -13,6 +13,12 @@ samples, or against a reference image, is reported.
 
 The papers' own comparisons are checked where the algorithms they need are
 in the run (``PAPER_CHECKS``); the figures are reported whatever they are.
+
+Every algorithm is rendered with z-cull refreshed in submission order
+(``zcull_refresh = "ordered"``, docs/pipeline.md §4): z-cull then sees, for
+each triangle batch, the depth of every earlier one, whatever the queue
+depths and throughputs, so algorithms are compared on equal footing, and a
+faster tile test does not change what z-cull culls.
 """
 
 from __future__ import annotations
@@ -96,6 +102,7 @@ class Comparison:
     identical: bool
     differing: list[str]
     checks: list[dict]
+    zcull_refresh: str = "ordered"
 
 
 def _ratio_check(a: float, b: float, target: float) -> tuple[str, bool]:
@@ -162,7 +169,7 @@ def _accuracy_settings(arch: ArchConfig) -> tuple:
 
 
 def compare(scene, arch: ArchConfig, algorithms: list[str], progress=None,
-            reference: np.ndarray | None = None) -> Comparison:
+            reference: np.ndarray | None = None, zcull_refresh: str = "ordered") -> Comparison:
     """Render ``scene`` with each algorithm; tabulate and check the images are identical.
 
     A culling algorithm may change only settings declared not to change
@@ -173,6 +180,10 @@ def compare(scene, arch: ArchConfig, algorithms: list[str], progress=None,
     theirs. Each row's image error (RMSE, PSNR) is measured against
     ``reference`` if given, else against the first image whose accuracy
     settings are those of ``arch`` itself, else the first image.
+    ``zcull_refresh``: when z-cull sees the ROP's refreshes
+    (``pipeline_sim.render.ZCULL_REFRESH``); "ordered" (the default) makes
+    every counter independent of timing, "timed" is the hardware-like order
+    of ``pipeline-sim run``.
     """
     from pipeline_sim.accuracy import error_metrics
     from pipeline_sim.render import render_scene
@@ -181,7 +192,7 @@ def compare(scene, arch: ArchConfig, algorithms: list[str], progress=None,
     for name in algorithms:
         arch_n = apply_overrides(arch, ALGORITHMS[name])
         groups.setdefault(_accuracy_settings(arch_n), []).append(name)
-        result = render_scene(scene, arch_n)
+        result = render_scene(scene, arch_n, zcull_refresh=zcull_refresh)
         dimensions = result.dimensions
         rows.append(_row(name, result))
         images[name] = result.image
@@ -198,7 +209,7 @@ def compare(scene, arch: ArchConfig, algorithms: list[str], progress=None,
     ref = base.iloc[0] if len(base) else table.iloc[0]
     table["ste_vs_baseline"] = table.ste / ref.ste if ref.ste else float("nan")
     table["samples_tested_vs_baseline"] = table.samples_tested / max(ref.samples_tested, 1)
-    return Comparison(table, images, not differing, differing, paper_checks(table, dimensions))
+    return Comparison(table, images, not differing, differing, paper_checks(table, dimensions), zcull_refresh)
 
 
 def comparison_figure(table: pd.DataFrame):
@@ -243,9 +254,9 @@ def write_comparison(comp: Comparison, out: OutputFolder, info: dict) -> Path:
             for row in comp.table.to_dict("records")]
     tmp = out.staging
     comp.table.to_csv(tmp / "table.csv", index=False)
-    write_json(tmp / "comparison.json", {**info, "identical_images": comp.identical,
-                                          "differing": comp.differing, "paper_checks": comp.checks,
-                                          "rows": rows})
+    write_json(tmp / "comparison.json", {**info, "zcull_refresh": comp.zcull_refresh,
+                                          "identical_images": comp.identical, "differing": comp.differing,
+                                          "paper_checks": comp.checks, "rows": rows})
     (tmp / "comparison.png").write_bytes(figure_png(comparison_figure(comp.table)))
     for name, img in comp.images.items():
         stem = f"image_{name.replace('+', '_').replace('/', '_')}"

@@ -6,6 +6,13 @@ Kernels fill an int64 vector laid out as the unit declares; ``CounterSet``
 accumulates those vectors and renders one tidy row per (unit, counter).
 Ratios such as STE are kept as numerator and denominator counters and
 computed when reported.
+
+Each unit also declares which of its counters timing can move
+(``timing_dependent``, next to its event names): z-cull tests against the
+depth the ROP has refreshed by that simulated time, so what it culls, and
+everything downstream of it, depends on queue depths, throughputs and
+batch sizes as it would in hardware (docs/pipeline.md §4). The declaration is
+checked by measurement in ``tests/test_timing_dependence.py``.
 """
 
 from __future__ import annotations
@@ -24,15 +31,19 @@ COMMON = ("records_in", "records_out", *ARITHMETIC, "bytes_read", "bytes_written
 
 @dataclass
 class CounterSet:
-    """Accumulated counters of one unit: common ones first, then ``events``."""
+    """Accumulated counters of one unit: common ones first, then ``events``;
+    ``timing_dependent`` names those that timing can move."""
 
     unit: str
     events: tuple[str, ...]
+    timing_dependent: tuple[str, ...] = ()
     values: np.ndarray = field(init=False)
 
     def __post_init__(self) -> None:
         self.values = np.zeros(len(COMMON) + len(self.events), dtype=np.int64)
         self._index = {name: i for i, name in enumerate(self.names)}
+        unknown = set(self.timing_dependent) - set(self._index)
+        assert not unknown, f"{self.unit}: timing_dependent names no counter {sorted(unknown)}"
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -56,7 +67,10 @@ class CounterSet:
         return {n: int(v) for n, v in zip(self.names, self.values)}
 
 
-def counters_frame(sets: list[CounterSet]) -> pd.DataFrame:
-    """Tidy table: one row per unit and counter (columns unit, counter, value)."""
-    rows = [(s.unit, n, int(v)) for s in sets for n, v in zip(s.names, s.values)]
-    return pd.DataFrame(rows, columns=["unit", "counter", "value"])
+def counters_frame(sets: list[CounterSet], timing: bool = True) -> pd.DataFrame:
+    """Tidy table: one row per unit and counter (columns unit, counter, value,
+    timing_dependent). ``timing``: whether timing could move any counter in
+    this pass (false when z-cull was bypassed or saw its refreshes in
+    submission order); if not, every counter's ``timing_dependent`` is false."""
+    rows = [(s.unit, n, int(v), timing and n in s.timing_dependent) for s in sets for n, v in zip(s.names, s.values)]
+    return pd.DataFrame(rows, columns=["unit", "counter", "value", "timing_dependent"])

@@ -8,11 +8,16 @@ instance, instances, latency), holds the unit busy for those cycles and then
 puts its output batches into the next channel, waiting while that channel is
 full. Per stage we account busy, starved (waiting for input) and blocked
 (waiting for room downstream) cycles; per channel the time-weighted and
-maximum occupancy.
+maximum occupancy, in the unit its capacity counts (records, or batches).
 
-Functional results never depend on timing: every unit processes its batches
-in order, so changing a cost or a queue depth changes cycles, never the
-image.
+Every unit processes its batches in order, so changing a cost or a queue
+depth changes cycles, never the image. What a unit computes can still
+depend on when it runs where one unit reads state another updates (z-cull
+reads the depth the ROP has refreshed by that simulated time): such
+counters are declared timing-dependent (docs/pipeline.md §4).
+``run_in_order`` takes timing out of them: it runs the functional models
+first, in submission order, and hands ``simulate`` stages that replay what
+each step returned.
 """
 
 from __future__ import annotations
@@ -52,6 +57,11 @@ class Fifo:
         self.items: deque = deque()
         self._waiting_get: simpy.Event | None = None  # the consumer, waiting for an item
         self._waiting_put: tuple[simpy.Event, Any, int] | None = None  # the producer, waiting for room
+
+    @property
+    def unit(self) -> str:
+        """What the capacity and the level count."""
+        return "records" if self.by_records else "batches"
 
     def weight(self, item: Any) -> int:
         if item is END:
@@ -97,14 +107,15 @@ class Fifo:
 class Channel:
     """A bounded FIFO of batches between two stages, with occupancy statistics.
 
-    Bounded either in batches (``depth`` items) or in records (``Fifo``'s
-    ``by_records``), so that the batch size sets the granularity of the
-    timing without changing the size of the FIFO.
+    Bounded either in batches or in records (``Fifo``'s ``by_records``), so
+    that the batch size sets the granularity of the timing without changing
+    the size of the FIFO; the occupancy is counted in the same unit as the
+    capacity (the FIFO's level: a batch larger than the whole capacity
+    counts as the capacity).
     """
 
     name: str
     store: Fifo
-    depth: int
     _last: float = 0.0
     _level: int = 0
     integral: float = 0.0
@@ -116,7 +127,7 @@ class Channel:
         if now > self._last:
             self.integral += self._level * (now - self._last)
             self._last = now
-        level = len(self.store.items)
+        level = self.store.level
         if level != self._level or not self.series:
             self.series.append((now, level))
         self._level = level
@@ -220,7 +231,7 @@ class TimingResult:
 
     frame_cycles: float
     units: pd.DataFrame  # unit, busy, starved, blocked, batches, utilization
-    queues: pd.DataFrame  # channel, depth, mean_occupancy, peak_occupancy
+    queues: pd.DataFrame  # channel, capacity_<unit>, mean_<unit>, peak_<unit> (unit: records or batches)
     traces: dict[str, list[tuple[float, float, str]]]  # per unit: (start, end, busy|starved|blocked)
     queue_series: dict[str, list[tuple[float, int]]]  # per channel: (time, occupancy) at each change
 
@@ -230,14 +241,15 @@ def simulate(stages: list[Stage], source_batches: list[Any], queue_depth: int,
     """Run the stages in order, fed with ``source_batches``, and time them.
 
     Each channel (the input of each stage) holds ``queue_depth`` batches, or,
-    with ``capacities``, that many records (one number per stage input).
+    with ``capacities``, that many records (one number per stage input); its
+    capacity and occupancy are reported in that unit.
     """
     env = simpy.Environment()
     names = ["input"] + [f"{a.name}->{b.name}" for a, b in zip(stages, stages[1:])]
     if capacities is None:
-        channels = [Channel(n, Fifo(env, queue_depth, by_records=False), queue_depth) for n in names]
+        channels = [Channel(n, Fifo(env, queue_depth, by_records=False)) for n in names]
     else:
-        channels = [Channel(n, Fifo(env, cap, by_records=True), queue_depth) for n, cap in zip(names, capacities)]
+        channels = [Channel(n, Fifo(env, cap, by_records=True)) for n, cap in zip(names, capacities)]
     env.process(_source_process(env, source_batches, channels[0]))
     for i, stage in enumerate(stages):
         out = channels[i + 1] if i + 1 < len(channels) else None
@@ -258,15 +270,58 @@ def simulate(stages: list[Stage], source_batches: list[Any], queue_depth: int,
             for s in stages
         ]
     )
+    unit = channels[0].store.unit
     queues = pd.DataFrame(
         [
-            {"channel": c.name, "depth": c.depth, "mean_occupancy": (c.integral / frame) if frame > 0 else 0.0,
-             "peak_occupancy": c.peak}
+            {"channel": c.name, f"capacity_{unit}": c.store.capacity,
+             f"mean_{unit}": (c.integral / frame) if frame > 0 else 0.0, f"peak_{unit}": c.peak}
             for c in channels
         ]
     )
     return TimingResult(frame, units, queues, {s.name: s.trace for s in stages},
                         {c.name: c.series for c in channels})
+
+
+def run_in_order(stages: list[Stage], source_batches: list[Any], after_batch: Callable[[], float]) -> list[Stage]:
+    """Run the stages' functional models in submission order and return stages that replay them.
+
+    Each source batch goes through every stage before the next one starts,
+    so nothing a step computes depends on timing. Each stage still steps
+    through the same batches in the same order as under ``simulate`` (a
+    stage takes its inputs in the order the stage before it put them out),
+    so the returned stages, which return the recorded output sizes and
+    cycles of each step, give ``simulate`` the same work to time.
+    ``after_batch`` runs once each source batch has gone through; the cycles
+    it returns are charged to the last stage's last step of that batch.
+    """
+    logs: list[deque] = [deque() for _ in stages]
+    last = len(stages) - 1
+
+    def push(i: int, batch: Any) -> None:
+        outputs, cycles = stages[i].step(batch)
+        logs[i].append([[_records(o) for o in outputs], cycles])
+        if i < last:
+            for o in outputs:
+                push(i + 1, o)
+
+    for batch in source_batches:
+        steps_before = len(logs[last])
+        push(0, batch)
+        extra = after_batch()
+        if extra:
+            assert len(logs[last]) > steps_before, "cycles after a batch that reached no last step"
+            logs[last][-1][1] += extra
+    return [Stage(s.name, _replay(log), s.latency) for s, log in zip(stages, logs)]
+
+
+def _replay(log: deque) -> Callable[[Any], tuple[list[Any], float]]:
+    """A step returning, call by call, the recorded output sizes (as stand-in batches) and cycles."""
+
+    def step(_batch: Any) -> tuple[list[Any], float]:
+        sizes, cycles = log.popleft()
+        return [range(n) for n in sizes], cycles
+
+    return step
 
 
 def cycles_for(work: float, throughput: float, instances: int) -> float:

@@ -23,7 +23,7 @@ from pipeline_sim.config import ArchConfig, PipelineConfig
 from pipeline_sim.counters import CounterSet, counters_frame
 from pipeline_sim.draw import Draw, build_draw
 from pipeline_sim.errors import UserError
-from pipeline_sim.pipeline import Stage, TimingResult, chunks, count_records, cycles_for, simulate
+from pipeline_sim.pipeline import Stage, TimingResult, chunks, count_records, cycles_for, run_in_order, simulate
 from pipeline_sim.regions import RegionPlan, RegionSamples, TriangleBatch, bin_triangles, plan_regions, row_step
 from pipeline_sim.sampling import make_samples
 from pipeline_sim.shaders import standard_params, standard_shader
@@ -34,6 +34,13 @@ from units.tile_test import TileTest
 from units.tile_traverser import TileTraverser
 from units.triangle_setup import TriangleSetup
 from units.zcull import ZCull
+
+#: When z-cull sees the ROP's refreshes (``RenderPass.zcull_refresh``): "timed", at the simulated
+#: time the ROP takes each batch, as hardware would (what z-cull culls then moves with queue depths,
+#: throughputs and batch sizes); "ordered", in submission order: each triangle batch goes through
+#: every unit before the next, and z-cull sees the refreshes of every earlier triangle batch and
+#: none of its own, so no counter depends on timing (docs/pipeline.md §4).
+ZCULL_REFRESH = ("timed", "ordered")
 
 UNIT_ORDER = ("triangle_setup", "tile_traverser", "tile_test", "zcull", "sample_tester", "shading", "rop")
 # what each unit's input channel carries
@@ -67,6 +74,7 @@ class RenderPass:
     clear_depth: float = 1.0
     sample_pattern: str | None = None  # None: the architecture's pipeline.sample_pattern
     sample_table: np.ndarray | None = None
+    zcull_refresh: str = "timed"  # one of ZCULL_REFRESH
 
 
 @dataclass
@@ -121,6 +129,9 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     texture = textures[p.texture] if isinstance(p.texture, str) else p.texture
     if isinstance(p.texture, str) and textures is None:
         raise UserError(f"pass {p.name}: texture '{p.texture}' needs run_passes")
+    if p.zcull_refresh not in ZCULL_REFRESH:
+        raise UserError(f"pass {p.name}: zcull_refresh '{p.zcull_refresh}' is not one of {', '.join(ZCULL_REFRESH)}")
+    ordered = p.zcull_refresh == "ordered"
     spp = 1 if conservative else p.spp
     pattern = p.sample_pattern or ("table" if p.sample_table is not None else arch.pipeline.sample_pattern)
 
@@ -154,7 +165,8 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     shading = Shading(arch.shading, draw, setup.table, samples, p.shader, p.params, texture, conservative)
     rop = Rop(arch.rop, draw.width, draw.height, spp, p.clear_color, p.clear_depth,
               zcull if zcull.active else None, samples, plan=plan, keep_depth=keep_depth)
-    cs = {u.name: CounterSet(u.name, u.events) for u in (setup, traverser, tile_test, zcull, tester, shading, rop)}
+    cs = {u.name: CounterSet(u.name, u.events, u.timing_dependent)
+          for u in (setup, traverser, tile_test, zcull, tester, shading, rop)}
     pcfg = arch.pipeline
     done = [0]
     set_up = np.zeros(draw.n, np.bool_)  # per triangle: set up (in an earlier region's batch or this one)
@@ -241,18 +253,40 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
             cyc = max(cyc, cycles_for(ev[0], cfg.throughput, cfg.instances))
         return [out], cyc
 
+    pending = []  # ordered: the refresh requests of the current triangle batch
+
+    def refresh(requests) -> float:
+        """The ROP's refresh of z-cull's boxes, the one path between them: its depth reads and
+        comparisons are the ROP's counters, and its reads take the ROP's bandwidth after the batch's
+        own traffic (the scan reads what the batch wrote). Returns its cycles."""
+        ops, ev, nbytes = rop.refresh_zcull(requests)
+        c = cs["rop"]
+        c.add_ops(ops), c.add_events(ev), c.add("bytes_read", nbytes)
+        return cycles_for(nbytes, arch.rop.bandwidth, 1)
+
     def step_rop(batch):
-        _, ops, ev, traffic = rop.run(batch)
+        request, ops, ev, traffic = rop.run(batch)
         c = cs["rop"]
         n = len(batch["pix"])
         c.add_ops(ops), c.add_events(ev), count_records(c, n, int(ev[3]))
         c.add("bytes_read", int(traffic[0]))
         c.add("bytes_written", int(traffic[1]))
-        if rop.zcull is not None:
-            cs["zcull"].add_events(rop.zcull_refresh_events)
         cfg = arch.rop
         cyc = max(cycles_for(n, cfg.throughput, cfg.instances), cycles_for(traffic.sum(), cfg.bandwidth, 1))
+        if request is not None:
+            if ordered:
+                pending.append(request)
+            else:
+                cyc += refresh([request])
         return [], cyc
+
+    def after_triangle_batch() -> float:
+        """Ordered refresh: once a triangle batch has gone through, z-cull sees what it wrote."""
+        if not pending:
+            return 0.0
+        cyc = refresh(pending)
+        pending.clear()
+        return cyc
 
     stage_defs = [
         ("triangle_setup", step_setup, arch.triangle_setup.latency),
@@ -289,11 +323,13 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     per_kind = {"triangles": default.triangles_per_batch, "tiles": default.tiles_per_batch,
                 "samples": default.samples_per_batch}
     capacities = [pcfg.queue_depth * per_kind[INPUT_KIND[st.name]] for st in stages]
+    if ordered:
+        stages = run_in_order(stages, tri_batches, after_triangle_batch)
     timing = simulate(stages, tri_batches, pcfg.queue_depth, capacities)
     image = rop.resolve()
     depth = rop.depth_samples()
     wall = time.perf_counter() - start
-    counters = counters_frame([cs[name] for name in UNIT_ORDER])
+    counters = counters_frame([cs[name] for name in UNIT_ORDER], timing=zcull.active and not ordered)
     return PassResult(
         name=p.name, image=image, counters=counters, timing=timing, wall_time=wall,
         dimensions={"motion": motion, "lens": lens}, units_used=[s.name for s in stages],

@@ -581,7 +581,8 @@ def _run_point(spec: dict[str, Any], params: dict[str, Any], out: Path,
         (tmp / "trace.json").write_text(_json_text(trace, indent=None))
         write_json(tmp / "run.json", info)
         folder.commit()
-    counters = [[str(u), str(n), int(v)] for u, n, v in result.counters.itertuples(index=False)]
+    c = result.counters
+    counters = [[str(u), str(n), int(v)] for u, n, v in zip(c.unit, c.counter, c.value)]
     return summary, counters
 
 

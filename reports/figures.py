@@ -13,7 +13,8 @@ Figures:
   unit, stacked busy / starved / blocked, the point's bottleneck unit marked.
 * :func:`pipeline_diagram`: the seven units as boxes colored by utilization
   (:func:`utilization_colors`; colorbar), the queues as arrows labelled with
-  mean / peak occupancy.
+  mean / peak occupancy and capacity, in the unit the capacity counts
+  (:func:`queue_columns`).
 * :func:`timeline`: every unit's state over simulated cycles (colored
   horizontal segments, like a signal-trace viewer) and every queue's
   occupancy (step plots); long traces are binned (:func:`bin_trace`,
@@ -51,7 +52,7 @@ __all__ = [
     "UNIT_ORDER", "STATES", "STATE_COLORS", "UTIL_CMAP", "UNIT_LABELS",
     "figure_png", "png_data_uri", "short_param", "point_label",
     "cycle_breakdown", "sweep_cycle_breakdown",
-    "utilization_norm", "utilization_colors", "pipeline_diagram",
+    "utilization_norm", "utilization_colors", "queue_columns", "queue_capacities", "pipeline_diagram",
     "bin_trace", "bin_series", "timeline",
     "pareto_front", "accuracy_cost", "params_vs_metrics", "image_grid",
 ]
@@ -298,15 +299,44 @@ def utilization_colors(utilization: Mapping[str, float], cmap: str = UTIL_CMAP) 
     return {unit: tuple(float(c) for c in cm(float(np.clip(norm(u), 0.0, 1.0)))) for unit, u in utilization.items()}
 
 
+def queue_columns(queues: pd.DataFrame) -> tuple[str, str | None, str, str]:
+    """``(unit, capacity column, mean column, peak column)`` of a queues table
+    (``TimingResult.queues`` or a ``queues.csv``): ``capacity_<unit>``,
+    ``mean_<unit>``, ``peak_<unit>``, unit ``records`` or ``batches``. A
+    ``queues.csv`` written before the columns named their unit has
+    ``mean_occupancy`` and ``peak_occupancy`` in batches and no capacity in
+    that unit (its ``depth`` counted batches of the default size)."""
+    for unit in ("records", "batches"):
+        if f"mean_{unit}" in queues:
+            return unit, f"capacity_{unit}", f"mean_{unit}", f"peak_{unit}"
+    return "batches", None, "mean_occupancy", "peak_occupancy"
+
+
+def queue_capacities(queues: pd.DataFrame) -> dict[str, float]:
+    """Channel -> capacity, in the unit of :func:`queue_columns` (empty if the table has none)."""
+    cap = queue_columns(queues)[1]
+    return dict(zip(queues["channel"], queues[cap])) if cap is not None else {}
+
+
+def _count(v: float) -> str:
+    """An occupancy, short, to three significant digits: ``0.53``, ``126``, ``2.05k``, ``262k``."""
+    v = float(v)
+    for scale, suffix in ((1e6, "M"), (1e3, "k")):
+        if v >= 0.9995 * scale:  # what rounds to three digits at this scale
+            return f"{v / scale:.3g}{suffix}"
+    return f"{v:.0f}" if v.is_integer() else f"{v:.3g}"
+
+
 def pipeline_diagram(units: pd.DataFrame, queues: pd.DataFrame, *, title: str | None = None,
                      cmap: str = UTIL_CMAP) -> Figure:
     """The seven units as boxes colored by utilization, the queues as labelled arrows.
 
     ``units`` is ``TimingResult.units`` (a unit that is not there is drawn as
-    bypassed), ``queues`` is ``TimingResult.queues`` (channel, depth,
-    mean_occupancy, peak_occupancy); a queue whose peak reached its depth
-    (it was full: back-pressure) is labelled in red.
+    bypassed), ``queues`` is ``TimingResult.queues`` (channel, capacity,
+    mean and peak occupancy, :func:`queue_columns`); a queue whose peak
+    reached its capacity (it was full: back-pressure) is labelled in red.
     """
+    unit, cap_col, mean_col, peak_col = queue_columns(queues)
     w_box, gap, h_box = 1.7, 1.35, 1.25
     xs = {u: 1.2 + i * (w_box + gap) for i, u in enumerate(UNIT_ORDER)}
     t = units.set_index("unit") if len(units) else pd.DataFrame()
@@ -351,10 +381,10 @@ def pipeline_diagram(units: pd.DataFrame, queues: pd.DataFrame, *, title: str | 
                     zorder=3, bbox=dict(facecolor="white", edgecolor="none", pad=1))
 
     def qtext(row) -> tuple[str, str]:
-        depth = int(row["depth"]) if "depth" in row and pd.notna(row["depth"]) else None
-        peak = row["peak_occupancy"]
-        full = depth is not None and peak >= depth
-        txt = f"mean {row['mean_occupancy']:.2f}\npeak {int(peak)}" + (f"/{depth}" if depth is not None else "")
+        cap = row[cap_col] if cap_col is not None and pd.notna(row[cap_col]) else None
+        peak = row[peak_col]
+        full = cap is not None and peak >= cap
+        txt = f"mean {_count(row[mean_col])}\npeak {_count(peak)}" + (f"/{_count(cap)}" if cap is not None else "")
         return txt, ("#b00020" if full else "black")
 
     for _, row in queues.iterrows():
@@ -390,7 +420,7 @@ def pipeline_diagram(units: pd.DataFrame, queues: pd.DataFrame, *, title: str | 
         sm = ScalarMappable(norm=utilization_norm(util), cmap=colormaps[cmap])
         cb = fig.colorbar(sm, cax=cax, orientation="horizontal")
         cb.ax.xaxis.set_major_formatter(PercentFormatter(1.0, decimals=0))
-        cb.set_label("utilization (busy / frame cycles); queue labels: mean / peak occupancy (batches), "
+        cb.set_label(f"utilization (busy / frame cycles); queue labels: mean / peak occupancy / capacity ({unit}), "
                      "red = queue was full", fontsize=8.5)
         cb.ax.tick_params(labelsize=8)
         handles = [Patch(color=STATE_COLORS[s], label=s) for s in STATES]
@@ -464,20 +494,21 @@ def bin_series(series: Sequence[tuple[float, float]], frame_cycles: float, bins:
 
 def timeline(traces: Mapping[str, Sequence[tuple[float, float, str]]],
              queue_series: Mapping[str, Sequence[tuple[float, float]]], frame_cycles: float, *,
-             queue_depths: Mapping[str, int] | None = None, max_segments: int = 2500, bins: int = 1000,
-             title: str | None = None) -> Figure:
+             queue_capacities: Mapping[str, float] | None = None, queue_unit: str = "records",
+             max_segments: int = 2500, bins: int = 1000, title: str | None = None) -> Figure:
     """Every unit's busy / starved / blocked state and every queue's occupancy over cycles.
 
     A unit with more than ``max_segments`` trace segments (or a queue with
     more than ``max_segments`` changes) is binned into ``bins`` time bins:
     each bin of a unit row is split vertically by the fraction of the bin
     spent in each state; a queue shows the time-weighted mean level per bin
-    (line) and the maximum (shaded).
+    (line) and the maximum (shaded). Occupancies and ``queue_capacities``
+    (a dotted line) count ``queue_unit``.
     """
     frame = float(frame_cycles) if frame_cycles and frame_cycles > 0 else 1.0
     rows = list(UNIT_ORDER) + [u for u in traces if u not in UNIT_ORDER]
     chans = list(queue_series)
-    depths = dict(queue_depths or {})
+    capacities = dict(queue_capacities or {})
     fig = _figure(13.0, 2.9 + 0.55 * len(chans) + 0.3)
     gs = fig.add_gridspec(1 + len(chans), 1, height_ratios=[3.6] + [0.62] * len(chans), hspace=0.18)
     ax = fig.add_subplot(gs[0])
@@ -514,8 +545,8 @@ def timeline(traces: Mapping[str, Sequence[tuple[float, float, str]]],
     for i, ch in enumerate(chans):
         qa = fig.add_subplot(gs[1 + i], sharex=ax)
         ser = np.asarray(queue_series[ch], dtype=float).reshape(-1, 2)
-        depth = depths.get(ch)
-        top = max(float(depth) if depth else 0.0, float(ser[:, 1].max()) if len(ser) else 0.0, 1.0)
+        cap = capacities.get(ch)
+        top = max(float(cap) if cap else 0.0, float(ser[:, 1].max()) if len(ser) else 0.0, 1.0)
         if len(ser) > max_segments:
             binned_any = True
             edges, mean, mx = bin_series(ser, frame, bins)
@@ -527,8 +558,8 @@ def timeline(traces: Mapping[str, Sequence[tuple[float, float, str]]],
             ys = np.append(ser[:, 1], ser[-1, 1])
             qa.fill_between(xs, 0, ys, step="post", color="#9ecae1", linewidth=0)
             qa.step(xs, ys, where="post", color="#08519c", linewidth=0.9)
-        if depth:
-            qa.axhline(depth, color="#b00020", linewidth=0.6, linestyle=":")
+        if cap:
+            qa.axhline(cap, color="#b00020", linewidth=0.6, linestyle=":")
         qa.set_ylim(0, top * 1.05)
         qa.set_yticks([0, top] if top else [0])
         qa.tick_params(axis="y", labelsize=6.5)
@@ -544,7 +575,7 @@ def timeline(traces: Mapping[str, Sequence[tuple[float, float, str]]],
         ax.xaxis.set_major_formatter(_ENG)
         ax.set_xlabel("simulated cycles")
     note = f" (binned into {bins} time bins)" if binned_any else ""
-    fig.suptitle((title or "Timeline: unit states and queue occupancy (batches; dotted = depth)") + note,
+    fig.suptitle((title or f"Timeline: unit states and queue occupancy ({queue_unit}; dotted = capacity)") + note,
                  fontsize=11, y=0.995)
     fig.subplots_adjust(left=0.13, right=0.99, top=0.93, bottom=0.07)
     return fig

@@ -92,18 +92,20 @@ def run_figures(result) -> list[tuple[str, str, str, object]]:
     from reports import figures as F
 
     t = result.timing
-    depths = dict(zip(t.queues["channel"], t.queues["depth"])) if "depth" in t.queues else {}
+    unit = F.queue_columns(t.queues)[0]
     return [
         ("cycle_breakdown", "Per-unit cycle breakdown",
          "Busy, starved (waiting for input) and blocked (waiting for room downstream) cycles of each unit.",
          F.cycle_breakdown(t.units, frame_cycles=t.frame_cycles)),
         ("pipeline", "Pipeline",
          "Units colored by utilization (the busiest unit has the colormap's top color); queues labelled with their "
-         "mean and peak occupancy in batches (red: the queue was full at some time).",
+         f"mean and peak occupancy and their capacity, in {unit} (red: the queue was full at some time).",
          F.pipeline_diagram(t.units, t.queues)),
         ("timeline", "Timeline",
-         "Each unit's state over simulated cycles and each queue's occupancy (dotted line: its depth).",
-         F.timeline(t.traces, t.queue_series, t.frame_cycles, queue_depths=depths)),
+         f"Each unit's state over simulated cycles and each queue's occupancy in {unit} (dotted line: its "
+         "capacity).",
+         F.timeline(t.traces, t.queue_series, t.frame_cycles, queue_capacities=F.queue_capacities(t.queues),
+                    queue_unit=unit)),
     ]
 
 

@@ -752,23 +752,24 @@ def _document(sw: Sweep, metric: str, cost: str) -> _Doc:
         units = _read_csv(pdir / "timing.csv")
         queues = _read_csv(pdir / "queues.csv")
         trace = _load_trace(pdir / "trace.json")
+        qunit = F.queue_columns(queues)[0] if queues is not None else "records"
         if units is not None and queues is not None:
             doc.fig("pipeline", f"Pipeline of {lab}",
                     "Units colored by utilization (the busiest unit has the colormap's top color); arrows are the "
-                    "bounded queues, labelled with their time-weighted mean and peak occupancy in batches (red: the "
-                    "queue was full at some time, so the unit before it was blocked).",
+                    "bounded queues, labelled with their time-weighted mean and peak occupancy and their capacity, "
+                    f"in {qunit} (red: the queue was full at some time, so the unit before it was blocked).",
                     F.pipeline_diagram(units, queues, title=f"Pipeline of {lab}: units colored by utilization"))
         if trace is not None:
-            depths = dict(zip(queues["channel"], queues["depth"])) if queues is not None and "depth" in queues \
-                else {}
+            capacities = F.queue_capacities(queues) if queues is not None else {}
             fc = trace.get("frame_cycles") or (float(ok.set_index("point_id").loc[pid, "frame_cycles"])
                                                if "frame_cycles" in ok else 0.0)
             tr = {u: [tuple(s) for s in segs] for u, segs in (trace.get("units") or {}).items()}
             qs = {c: [tuple(s) for s in ser] for c, ser in (trace.get("queues") or {}).items()}
             doc.fig("timeline", f"Timeline of {lab}",
                     "Each unit's state over simulated cycles (green busy, grey starved, red blocked) and each "
-                    "queue's occupancy (dotted line: its depth).",
-                    F.timeline(tr, qs, float(fc), queue_depths=depths, title=f"Timeline of {lab}"))
+                    f"queue's occupancy in {qunit} (dotted line: its capacity).",
+                    F.timeline(tr, qs, float(fc), queue_capacities=capacities, queue_unit=qunit,
+                               title=f"Timeline of {lab}"))
         if units is None and trace is None:
             doc.p("This point has no timing.csv or trace.json.")
     else:

@@ -63,7 +63,10 @@ def test_run_writes_every_output(small_scene, tmp_path, capsys):
     png = np.asarray(Image.open(out / "image.png"))
     np.testing.assert_array_equal(png, linear_to_srgb8(img))
     counters = pd.read_csv(out / "counters.csv")
-    assert list(counters.columns) == ["unit", "counter", "value"]
+    assert list(counters.columns) == ["unit", "counter", "value", "timing_dependent"]
+    dependent = counters.set_index(["unit", "counter"]).timing_dependent
+    assert dependent.dtype == bool and not dependent["triangle_setup"].any()
+    assert dependent["zcull", "tiles_culled"] and dependent["sample_tester", "samples_tested"]
     assert set(counters.unit) == {"triangle_setup", "tile_traverser", "tile_test", "zcull", "sample_tester",
                                   "shading", "rop"}
     info = json.loads((out / "run.json").read_text())

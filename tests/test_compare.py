@@ -49,6 +49,24 @@ def test_every_algorithm_covers_the_same_samples(small_motion):
         assert (t[f"ops_{stage}"] > 0).all()
 
 
+def test_compare_does_not_depend_on_timing(root):
+    """compare refreshes z-cull in submission order: an algorithm's counters do not
+    move with the queue depth or a unit's throughput (with the hardware-like timed
+    refresh they do: on compare/both_1x at 4 spp z-cull culls more tiles with a slow
+    tile test, and the sample tester tests fewer samples)."""
+    scene = load_scene(root / "workloads/scenes/compare/both_1x.toml")
+    scene = scene.replace(image=dataclasses.replace(scene.image, spp=4))
+    names = ["bbox", "hierarchical"]
+    timing = ["frame_cycles", "wall_time_s"]
+    variants = ([], ["pipeline.queue_depth=32"], ["tile_test.throughput=0.05"])
+    tables = [compare(scene, load_arch(overrides=v), names).table.drop(columns=timing) for v in variants]
+    for t in tables[1:]:
+        pd.testing.assert_frame_equal(t, tables[0])
+    timed = [compare(scene, load_arch(overrides=v), names, zcull_refresh="timed").table for v in variants]
+    assert (timed[2].samples_tested < timed[0].samples_tested).all()
+    assert (timed[1].samples_tested != timed[0].samples_tested).any()
+
+
 def test_cli_writes_table_chart_images(small_motion, root, tmp_path, capsys):
     out = tmp_path / "cmp"
     assert main(["compare", str(root / "workloads/scenes/compare/motion_1x.toml"), "--spp", "4",
@@ -58,7 +76,7 @@ def test_cli_writes_table_chart_images(small_motion, root, tmp_path, capsys):
     table = pd.read_csv(out / "table.csv")
     assert list(table.algorithm) == ["bbox", "hierarchical"]
     info = json.loads((out / "comparison.json").read_text())
-    assert info["identical_images"] is True
+    assert info["identical_images"] is True and info["zcull_refresh"] == "ordered"
     assert (out / "comparison.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert (out / "image_bbox.png").exists() and (out / "image_hierarchical.npy").exists()
 

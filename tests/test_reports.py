@@ -340,6 +340,26 @@ def test_pipeline_diagram_colors_units_by_utilization(tiny_result):
     assert F.figure_png(fig).startswith(PNG_SIGNATURE)
 
 
+def test_queue_labels_count_records_against_the_capacity():
+    """Queue labels give mean, peak and capacity in one unit, the capacity's: a
+    queue whose peak reached its capacity is red; an old queues.csv (occupancy
+    in batches, depth in default-size batches) gets no capacity to compare."""
+    units = pd.DataFrame({"unit": ["triangle_setup", "tile_traverser"], "busy": [5.0, 9.0], "starved": [5.0, 1.0],
+                          "blocked": [0.0, 0.0], "batches": [2, 2], "utilization": [0.5, 0.9]})
+    queues = pd.DataFrame({"channel": ["input", "triangle_setup->tile_traverser"], "capacity_records": [256, 2048],
+                           "mean_records": [126.07, 999.6], "peak_records": [256, 1500]})
+    assert F.queue_columns(queues) == ("records", "capacity_records", "mean_records", "peak_records")
+    assert F.queue_capacities(queues) == {"input": 256, "triangle_setup->tile_traverser": 2048}
+    texts = {t.get_text(): t.get_color() for t in F.pipeline_diagram(units, queues).axes[0].texts}
+    assert texts["input\nmean 126\npeak 256/256"] == "#b00020"  # full
+    assert texts["mean 1k\npeak 1.5k/2.05k"] == "black"
+    legacy = pd.DataFrame({"channel": ["input"], "depth": [4], "mean_occupancy": [1.5], "peak_occupancy": [4]})
+    assert F.queue_columns(legacy) == ("batches", None, "mean_occupancy", "peak_occupancy")
+    assert F.queue_capacities(legacy) == {}
+    texts = {t.get_text(): t.get_color() for t in F.pipeline_diagram(units, legacy).axes[0].texts}
+    assert texts["input\nmean 1.5\npeak 4"] == "black"
+
+
 def test_timeline_bins_long_traces(tiny_result):
     t = tiny_result.timing
     # binning keeps the time in each state exactly
@@ -352,7 +372,7 @@ def test_timeline_bins_long_traces(tiny_result):
     for ch, ser in t.queue_series.items():
         edges, mean, mx = F.bin_series(ser, t.frame_cycles, 40)
         assert np.isclose((mean * np.diff(edges)).sum() / t.frame_cycles,
-                          t.queues.set_index("channel").loc[ch, "mean_occupancy"], rtol=1e-6, atol=1e-9)
+                          t.queues.set_index("channel").loc[ch, "mean_records"], rtol=1e-6, atol=1e-9)
         assert mx.max() == max(level for _, level in ser)
         assert np.all(mean <= mx + 1e-9)
     fig = F.timeline(t.traces, t.queue_series, t.frame_cycles, max_segments=5, bins=100)

@@ -114,8 +114,8 @@ def test_rop_kernel_matches_sequential_reference(func, blend, depth_write):
         np.testing.assert_array_equal(depth_buf, np.array(ref_depth, np.float32))
         np.testing.assert_array_equal(color_buf, np.array(ref_color, np.float32))
         got = dict(zip(EVENTS, events.tolist()))
-        for name in EVENTS:
-            assert got[name] == total[name], name
+        for name in EVENTS:  # z-cull refreshes are counted by ``Rop.refresh_zcull``, not the kernel
+            assert got[name] == total.get(name, 0), name
         assert traffic[0] == total["bytes_read"]
         assert traffic[1] == total["bytes_written"]
         assert ops[OP_CMP] == total["depth_tests"]
@@ -185,13 +185,13 @@ def test_rop_class_batches_and_counters(func, blend):
     for _ in range(4):
         frags = random_frags(rng, int(rng.integers(0, 60)), width * height, spp)
         batch = dict(zip(("pix", "sidx", "z", "color", "noread"), frags))
-        out, ops, ev, traffic = rop.run(batch)
-        assert out is None
+        request, ops, ev, traffic = rop.run(batch)
+        assert request is None  # no z-cull to refresh
         sums += ev
         bytes_rw += traffic
         cnt, _ = reference_rop(as_frag_list(*frags), spp, func, True, blend, ref_depth, ref_color)
         ref_tot = cnt if ref_tot is None else {k: ref_tot[k] + cnt[k] for k in ref_tot}
-    assert dict(zip(EVENTS, sums.tolist())) == {k: ref_tot[k] for k in EVENTS}
+    assert dict(zip(EVENTS, sums.tolist())) == {k: ref_tot.get(k, 0) for k in EVENTS}  # no z-cull: no refresh
     assert bytes_rw.tolist() == [ref_tot["bytes_read"], ref_tot["bytes_written"]]
     np.testing.assert_array_equal(rop.depth, np.array(ref_depth, np.float32))
     np.testing.assert_array_equal(rop.color, np.array(ref_color, np.float32))

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 import pipeline_sim.render as render
+import units.rop as rop_mod
 import units.zcull as zc
 from pipeline_sim.config import RopConfig, load_arch
 from pipeline_sim.draw import draw_from_clip
@@ -92,10 +93,11 @@ def reference_image(scene):
     return res
 
 
+@pytest.mark.parametrize("refresh", ["timed", "ordered"])
 @pytest.mark.parametrize("func", ["less", "lequal"])
-def test_zcull_on_off_bit_identical_and_culls(scene, func):
+def test_zcull_on_off_bit_identical_and_culls(scene, func, refresh):
     off = render_with(scene, ["zcull.enabled=false", f"rop.depth_test={func}"])
-    on = render_with(scene, [f"rop.depth_test={func}"])
+    on = render_with(scene, [f"rop.depth_test={func}"], zcull_refresh=refresh)
     assert "zcull" in on.units_used
     np.testing.assert_array_equal(on.image, off.image)
     np.testing.assert_array_equal(on.depth, off.depth)
@@ -155,11 +157,12 @@ def _tile_samples(table, samples, tri, tx, ty, ts):
     return out
 
 
+@pytest.mark.parametrize("refresh", ["timed", "ordered"])
 @pytest.mark.parametrize("func", ["less", "lequal"])
-def test_culled_records_cannot_pass_depth_test(monkeypatch, scene, func):
+def test_culled_records_cannot_pass_depth_test(monkeypatch, scene, func, refresh):
     calls = _capture(monkeypatch)
     arch = load_arch(overrides=BASE + [f"rop.depth_test={func}"])
-    res = run_pass(RenderPass(draw=scene, arch=arch, spp=SPP))
+    res = run_pass(RenderPass(draw=scene, arch=arch, spp=SPP, zcull_refresh=refresh))
     ts = arch.tile_traverser.tile_size
     setup = TriangleSetup(arch.triangle_setup, scene, ts)
     setup.run(np.arange(scene.n, dtype=np.int64))
@@ -209,6 +212,14 @@ def test_box_knobs_do_not_change_image(scene, reference_image, slices, boxes):
     assert culled(res) > 0
 
 
+def brute_box(samples, k, nt, nl):
+    """The (t, u, v) box of sample ``k``."""
+    it = min(nt - 1, int(np.floor(float(samples.t[k]) * nt)))
+    iu = min(nl - 1, max(0, int(np.floor((float(samples.u[k]) + 1.0) * 0.5 * nl))))
+    iv = min(nl - 1, max(0, int(np.floor((float(samples.v[k]) + 1.0) * 0.5 * nl))))
+    return (it * nl + iu) * nl + iv
+
+
 def brute_zmax(samples, depth, tile_size, nt, nl):
     """Per tile of ``samples``' rows (tile-row-major) and box: the first largest
     depth in the tile's row-major sample order (-inf for a box without samples)."""
@@ -221,10 +232,7 @@ def brute_zmax(samples, depth, tile_size, nt, nl):
             for y in range(ty * tile_size, min((ty + 1) * tile_size, samples.height)):
                 for x in range(tx * tile_size, min((tx + 1) * tile_size, w)):
                     for k in range((y * w + x) * spp, (y * w + x + 1) * spp):
-                        it = min(nt - 1, int(np.floor(float(samples.t[k]) * nt)))
-                        iu = min(nl - 1, max(0, int(np.floor((float(samples.u[k]) + 1.0) * 0.5 * nl))))
-                        iv = min(nl - 1, max(0, int(np.floor((float(samples.v[k]) + 1.0) * 0.5 * nl))))
-                        box = (it * nl + iu) * nl + iv
+                        box = brute_box(samples, k, nt, nl)
                         if depth[k] > out[ty * tiles_x + tx, box]:
                             out[ty * tiles_x + tx, box] = depth[k]
     return out
@@ -236,7 +244,10 @@ def brute_zmax(samples, depth, tile_size, nt, nl):
 def test_refresh_matches_brute_force_after_every_batch(func, depth_write, slices, boxes, rows):
     """Many small batches over few tiles and depth levels (ties, +0 and -0): after
     each batch, the touched tiles' boxes are those of a full scan of the depth
-    buffer, bit for bit, and every other tile's are unchanged."""
+    buffer, bit for bit, and every other tile's are unchanged. The depth read
+    is that of scanning a tile when first refreshed, and after that the boxes
+    where a depth not below their zmax was replaced: their samples, four
+    bytes each."""
     rng = np.random.default_rng(slices * 10 + boxes + rows + depth_write)
     w, h, spp, ts = 10, 12, 4, 4
     arch = load_arch()
@@ -251,6 +262,8 @@ def test_refresh_matches_brute_force_after_every_batch(func, depth_write, slices
         r0, r1 = plan.bounds(region)
         samples = regions.region(region)
         t0 = r0 // ts * zcull.tiles_x
+        box = [brute_box(samples, k, slices, boxes) for k in range(len(samples.t))]
+        scanned = set()  # tiles refreshed from this region's depth buffer
         for _ in range(12):
             n = int(rng.integers(1, 40))
             pix = rng.integers(r0 * w, r1 * w, n).astype(np.int32)
@@ -258,10 +271,26 @@ def test_refresh_matches_brute_force_after_every_batch(func, depth_write, slices
                          z=levels[rng.integers(0, len(levels), n)], color=np.ones((n, 4), np.float32),
                          noread=np.zeros(n, np.bool_))
             before = zcull.zmax.copy()
-            rop.run(batch)
+            request, *_ = rop.run(batch)
+            _, events, nbytes = rop.refresh_zcull([request])
             py, px = pix // w, pix % w
             touched = np.unique((py // ts) * zcull.tiles_x + px // ts)
-            assert rop.zcull_refresh_events[zc.EV_REFRESH] == len(touched)
+            assert events[rop_mod.EV_REFRESH_TILES] == len(touched)
+            read = scans = 0
+            for tile in touched:
+                mine = [k for k in range((r1 - r0) * w * spp)
+                        if ((k // spp) // w // ts) * zcull.tiles_x + (k // spp) % w // ts == tile - t0]
+                if tile in scanned:  # the boxes where a depth not below their zmax was replaced
+                    stale = {box[(p - r0 * w) * spp + si] for p, si, old in zip(pix, batch["sidx"], request[2])
+                             if (p // w // ts) * zcull.tiles_x + p % w // ts == tile
+                             and old >= before[tile, box[(p - r0 * w) * spp + si]]}
+                else:  # a tile's first refresh reads all of it
+                    stale = set(box[k] for k in mine)
+                    scanned.add(tile)
+                scans += bool(stale)
+                read += sum(box[k] in stale for k in mine)
+            assert events[rop_mod.EV_REFRESH_SCANS] == scans
+            assert nbytes == 4 * read
             expect = before.copy()
             expect[touched] = brute_zmax(samples, rop.depth, ts, slices, boxes)[touched - t0]
             np.testing.assert_array_equal(zcull.zmax.view(np.uint32), expect.view(np.uint32))
@@ -275,17 +304,16 @@ def test_refresh_rescans_a_new_depth_buffer():
     zcull = zc.ZCull(load_arch().zcull, "less", ts, w, h, 1.0)
     pix = np.arange(w * h, dtype=np.int32).repeat(spp)
     sidx = np.tile(np.arange(spp, dtype=np.int32), w * h)
-    events = np.zeros(len(zc.EVENTS), np.int64)
     first = np.random.default_rng(1).random(w * h * spp).astype(np.float32) * 0.5
     prior = np.ones(len(pix), np.float32)  # every sample written from the clear depth
-    zcull.refresh(pix, sidx, prior, samples, first, events)
+    work = zcull.refresh(pix, sidx, prior, samples, first)
     np.testing.assert_array_equal(zcull.zmax, brute_zmax(samples, first, ts, zcull.nt, zcull.nl))
     cleared = np.ones_like(first)
     cleared[:spp] = 0.25
     prior = np.full(len(pix), np.nan, np.float32)
     prior[:spp] = 1.0
-    zcull.refresh(pix[:spp], sidx[:spp], prior[:spp], samples, cleared, events)
+    work += zcull.refresh(pix[:spp], sidx[:spp], prior[:spp], samples, cleared)
     expect = brute_zmax(samples, cleared, ts, zcull.nt, zcull.nl)
     np.testing.assert_array_equal(zcull.zmax[0], expect[0])
     np.testing.assert_array_equal(zcull.zmax[1], brute_zmax(samples, first, ts, zcull.nt, zcull.nl)[1])
-    assert events[zc.EV_REFRESH] == 2 + 1
+    assert work[zc.RF_TILES] == 2 + 1

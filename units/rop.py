@@ -4,9 +4,11 @@ Implements docs/pipeline.md §2.7. Samples arrive in primitive order; each is
 depth-tested against its multisample depth buffer entry with the configured
 function, and on a pass its color is blended (replace, add, min, max) into a
 float RGBA multisample color buffer (``add`` saturates at the largest finite
-float32, so that the buffer stays finite however many layers add up). Resolve is a box filter over each
-pixel's samples. After each batch the z-cull boxes of the touched tiles are
-refreshed from the depth buffer.
+float32, so that the buffer stays finite however many layers add up).
+Resolve is a box filter over each pixel's samples. The z-cull boxes of the
+tiles a batch wrote are refreshed from the depth buffer through
+``refresh_zcull``, the one path from the ROP to z-cull; its depth reads and
+comparisons are the ROP's work.
 
 The multisample buffers hold one screen region (``pipeline_sim.regions``)
 at a time: when the first batch of the next region arrives, the current one
@@ -21,9 +23,16 @@ import numpy as np
 from pipeline_sim.config import BLEND_MODES, DEPTH_FUNCS
 from pipeline_sim.counters import N_OPS, OP_ADD, OP_CMP
 from pipeline_sim.regions import RegionPlan, RegionSamples
+from units.zcull import RF_CHECKS, RF_READ, RF_SCANS, RF_TILES
 
-EVENTS = ("depth_tests", "depth_passed", "depth_reads_skipped", "samples_written")
-EV_TESTS, EV_PASSED, EV_SKIPPED, EV_WRITTEN = range(len(EVENTS))
+EVENTS = ("depth_tests", "depth_passed", "depth_reads_skipped", "samples_written", "zcull_refresh_tiles",
+          "zcull_refresh_scans")
+EV_TESTS, EV_PASSED, EV_SKIPPED, EV_WRITTEN, EV_REFRESH_TILES, EV_REFRESH_SCANS = range(len(EVENTS))
+# counters timing can move (docs/pipeline.md §4): the samples z-cull passed and the reads it spared, and
+# the refreshes; which samples pass the depth test, and so the writes and blends, do not (z-cull culls
+# only samples that would fail it)
+TIMING_DEPENDENT = ("records_in", "compare", "bytes_read", "depth_tests", "depth_reads_skipped",
+                    "zcull_refresh_tiles", "zcull_refresh_scans")
 
 DEPTH_BYTES = 4
 COLOR_BYTES = 16
@@ -110,6 +119,7 @@ class Rop:
 
     name = "rop"
     events = EVENTS
+    timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, width: int, height: int, spp: int, clear_color, clear_depth: float, zcull=None,
                  samples=None, plan: RegionPlan | None = None, keep_depth: bool = True):
@@ -150,7 +160,9 @@ class Rop:
         if self.frame_depth is not None:
             self.frame_depth[self.pix0 * self.spp : r1 * self.width * self.spp] = self.depth
 
-    def run(self, batch: dict[str, np.ndarray]) -> tuple[None, np.ndarray, np.ndarray, np.ndarray]:
+    def run(self, batch: dict[str, np.ndarray]) -> tuple[tuple | None, np.ndarray, np.ndarray, np.ndarray]:
+        """Depth-test and blend a batch. Returns its z-cull refresh request (for ``refresh_zcull``;
+        None without z-cull), arithmetic, events and traffic (bytes read, written)."""
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
         traffic = np.zeros(2, np.int64)
@@ -163,11 +175,25 @@ class Rop:
         rop_kernel(batch["pix"], batch["sidx"], batch["z"], batch["color"], batch["noread"], self.spp, self.pix0,
                    self.func, self.config.depth_write, self.blend, self.depth, self.color, prior, ops, events,
                    traffic)
-        if self.zcull is not None:
-            zev = np.zeros(len(self.zcull.events), np.int64)
-            self.zcull.refresh(batch["pix"], batch["sidx"], prior, self.samples, self.depth, zev)
-            self.zcull_refresh_events = zev
-        return None, ops, events, traffic
+        request = (batch["pix"], batch["sidx"], prior) if self.zcull is not None else None
+        return request, ops, events, traffic
+
+    def refresh_zcull(self, requests: list[tuple]) -> tuple[np.ndarray, np.ndarray, int]:
+        """Refresh z-cull's boxes for the samples of ``requests`` (from ``run``, of the current
+        screen region, in order) from the depth buffer as it is now. Returns the ROP's work for
+        it: arithmetic (one compare per replaced depth checked against its box's zmax and per
+        sample rescanned), events (tiles refreshed and rescanned) and the depth bytes read."""
+        if len(requests) == 1:
+            pix, sidx, prior = requests[0]
+        else:
+            pix, sidx, prior = (np.concatenate([r[k] for r in requests]) for k in range(3))
+        work = self.zcull.refresh(pix, sidx, prior, self.samples, self.depth)
+        ops = np.zeros(N_OPS, np.int64)
+        ops[OP_CMP] = work[RF_CHECKS] + work[RF_READ]
+        events = np.zeros(len(EVENTS), np.int64)
+        events[EV_REFRESH_TILES] = work[RF_TILES]
+        events[EV_REFRESH_SCANS] = work[RF_SCANS]
+        return ops, events, int(work[RF_READ]) * DEPTH_BYTES
 
     def resolve(self) -> np.ndarray:
         """Box-filter resolve: the mean of each pixel's samples, (H, W, 4) float32

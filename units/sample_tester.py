@@ -25,12 +25,15 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from pipeline_sim.counters import N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+from pipeline_sim.counters import COMMON, N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
 from pipeline_sim.regions import RegionSamples, samples_for_row
 
 EVENTS = ("samples_tested", "samples_covered", "samples_in_range", "pixels_visited",
           "tests_2d", "tests_3d_xyt", "tests_4d_xyuv", "tests_5d")
 EV_TESTED, EV_COVERED, EV_INRANGE, EV_PIXELS, EV_2D, EV_3D, EV_4D, EV_5D = range(len(EVENTS))
+# counters timing can move (docs/pipeline.md §4): all, since its input is what z-cull passes, and z-cull
+# tests against the depth the ROP has refreshed by that simulated time
+TIMING_DEPENDENT = COMMON + EVENTS
 
 # arithmetic of one inside test by dimension (index: 0 = 2D, 1 = 3D xyt, 2 =
 # 4D xyuv, 3 = 5D): vertex positions at the sample (none in 2D: the edges are
@@ -1005,6 +1008,7 @@ class SampleTester:
 
     name = "sample_tester"
     events = EVENTS
+    timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, table, samples, tile_size: int, backface_culling: bool, specialize: bool = True):
         self.config = config

@@ -23,7 +23,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from pipeline_sim.counters import N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+from pipeline_sim.counters import COMMON, N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
 from pipeline_sim.regions import RegionSamples, samples_for_row
 from pipeline_sim.shaders import (IN_B, IN_DEPTH, IN_MATERIAL, IN_NX, IN_NY, IN_NZ, IN_OBJECT, IN_PX, IN_R,
                                   IN_T, IN_T_HI, IN_T_LO, IN_TRIANGLE, IN_U, IN_U_HI, IN_U_LO, IN_V, IN_V_HI,
@@ -31,6 +31,9 @@ from pipeline_sim.shaders import (IN_B, IN_DEPTH, IN_MATERIAL, IN_NX, IN_NY, IN_
 
 EVENTS = ("lookups", "hits", "misses", "evictions", "shader_executions")
 EV_LOOKUP, EV_HIT, EV_MISS, EV_EVICT, EV_EXEC = range(len(EVENTS))
+# counters timing can move (docs/pipeline.md §4): all, since its samples come through z-cull, which tests
+# against the depth the ROP has refreshed by that simulated time
+TIMING_DEPENDENT = COMMON + EVENTS
 
 REPL_LRU, REPL_FIFO = 0, 1
 CELL_LIMIT = 1 << 20  # shading-grid cells are keyed in [-2^20, 2^20) per axis
@@ -253,6 +256,7 @@ class Shading:
 
     name = "shading"
     events = EVENTS
+    timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, draw, table, samples, shader, params: np.ndarray, texture: np.ndarray | None,
                  conservative: bool):

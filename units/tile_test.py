@@ -41,6 +41,8 @@ EVENTS = ("rejected_box", "rejected_edge", "rejected_lens", "accepted", "rejecte
           "rejected_two_stage", "rejected_tuples")
 (EV_REJ_BOX, EV_REJ_EDGE, EV_REJ_LENS, EV_ACCEPT, EV_REJ_HULL, EV_REJ_DUAL, EV_REJ_TWO,
  EV_REJ_TUPLES) = range(len(EVENTS))
+# counters timing can move (docs/pipeline.md §4): none; upstream of z-cull, every tile is seen whatever the timing
+TIMING_DEPENDENT: tuple[str, ...] = ()
 
 
 
@@ -460,6 +462,7 @@ class TileTest:
 
     name = "tile_test"
     events = EVENTS
+    timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, table, tile_size: int, width: int, height: int,
                  depth_w: tuple[float, float] | None = None, tuples: np.ndarray | None = None):

@@ -18,6 +18,8 @@ from units.tile_test import MARGIN_PX, box_time_interval
 
 EVENTS = ("coarse_tiles_tested", "coarse_tiles_rejected", "tiles_emitted")
 EV_COARSE, EV_COARSE_REJ, EV_EMIT = range(len(EVENTS))
+# counters timing can move (docs/pipeline.md §4): none; upstream of z-cull, every triangle is seen whatever the timing
+TIMING_DEPENDENT: tuple[str, ...] = ()
 
 
 @nb.njit(cache=True)
@@ -69,6 +71,7 @@ class TileTraverser:
 
     name = "tile_traverser"
     events = EVENTS
+    timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, table, tile_size: int, width: int, height: int, coarse_test: bool = True):
         self.config = config

@@ -56,6 +56,8 @@ EVENTS = (
     "mixed_facing",
 )
 EV_FRUSTUM, EV_BACKFACE, EV_DEGENERATE, EV_W0, EV_MOVING, EV_DEFOCUS, EV_MIXED = range(len(EVENTS))
+# counters timing can move (docs/pipeline.md §4): none; upstream of z-cull, every triangle is seen whatever the timing
+TIMING_DEPENDENT: tuple[str, ...] = ()
 
 ST_OK, ST_FRUSTUM, ST_BACKFACE, ST_DEGENERATE = 0, 1, 2, 3
 W_EPS = 1e-9  # w below this counts as crossing the camera plane
@@ -534,6 +536,7 @@ class TriangleSetup:
 
     name = "triangle_setup"
     events = EVENTS
+    timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, draw, tile_size: int, hull: bool = False):
         self.config = config

@@ -6,8 +6,11 @@ boxes of (t, u, v) space. A (triangle, tile) record whose nearest depth z^lo
 lies behind zmax in every box its intervals touch cannot pass the depth test
 anywhere and is culled; one whose farthest depth z^hi lies in front of zmin
 in every touched box passes everywhere, so the ROP needs no depth reads for
-it. The ROP refreshes a tile's boxes from the depth buffer after writing it;
-a stale box only makes the test looser, never wrong.
+it. The ROP refreshes a tile's boxes from the depth buffer after writing it
+(``ZCull.refresh``, the one path from the ROP to z-cull; its work is charged
+to the ROP); a stale box only makes the test looser, never wrong. Which
+refreshes a test sees depends on how far the ROP has got by then, so what
+z-cull culls can move with the timing (``TIMING_DEPENDENT``).
 """
 
 from __future__ import annotations
@@ -19,8 +22,15 @@ import numpy as np
 
 from pipeline_sim.counters import N_OPS, OP_CMP, OP_MUL
 
-EVENTS = ("tiles_culled", "tiles_no_depth_read", "box_lookups", "tile_refreshes")
-EV_CULLED, EV_NOREAD, EV_LOOKUPS, EV_REFRESH = range(len(EVENTS))
+EVENTS = ("tiles_culled", "tiles_no_depth_read", "box_lookups")
+EV_CULLED, EV_NOREAD, EV_LOOKUPS = range(len(EVENTS))
+# counters timing can move (docs/pipeline.md §4): what it culls and lets skip depth reads depends on the
+# refreshes that reached it; the lookups (and their arithmetic and bytes) follow each record's intervals only
+TIMING_DEPENDENT = ("records_out", "tiles_culled", "tiles_no_depth_read")
+# the work of a refresh: tiles touched, tiles rescanned (all boxes of a tile's first refresh, else those
+# a write may have lowered), depth samples read by the rescans, comparisons of a replaced depth with its box's zmax
+REFRESH_WORK = ("tiles", "scans", "samples_read", "checks")
+RF_TILES, RF_SCANS, RF_READ, RF_CHECKS = range(len(REFRESH_WORK))
 
 # depth functions for which zmax culling is valid
 CULL_LESS, CULL_LEQUAL, CULL_NONE = 0, 1, 2
@@ -89,60 +99,86 @@ def _sample_box(t, u, v, nt, nl):
 
 @nb.njit(cache=True)
 def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st, su, sv, depth, zmax, exact, slot,
-                   box_of, events):
-    """Set zmax of every tile touched by ``pix`` to the largest depth of each box's samples.
+                   box_of, work):
+    """Set zmax of every box of the tiles touched by ``pix`` to the largest depth of its samples
+    (Nilsson12 §3: the ROP keeps z-cull's per-tile bounds up to date).
 
     A box that holds no sample gets -inf: nothing there can be covered. The
-    first refresh of a tile from this depth buffer (``exact`` 0) also records
-    each sample's box in ``box_of``. Depths only decrease under a LESS/LEQUAL
-    test, so a tile's boxes can only have changed where a record replaced a
-    depth (``prior``; NaN: none) not below its box's zmax; other tiles keep
-    theirs, which are exactly what a rescan would give. Depths only decreasing
-    also makes a zmax read before later writes land an upper bound. (zmin is
-    kept by the z-cull test itself, see ``zcull_kernel``.)"""
+    first refresh of a tile from this depth buffer (``exact`` 0) reads all of
+    it and records each sample's box in ``box_of``. After that, depths only
+    decrease under a LESS/LEQUAL test, so a box's largest depth can only have
+    changed where a record replaced a depth (``prior``; NaN: none) not below
+    the box's zmax: only those boxes need their samples read (the work
+    counted); the others keep their zmax, which is exactly what a rescan
+    gives, and tiles with no such box are not rescanned. Depths only
+    decreasing also makes a zmax read before later writes land an upper
+    bound. (zmin is kept by the z-cull test itself, see
+    ``zcull_kernel``.) ``work`` gets the refresh's work, laid out as
+    ``REFRESH_WORK``."""
     n = pix.shape[0]
+    nbox = zmax.shape[1]
     touched = np.empty(n, np.int64)
-    stale = np.empty(n, np.bool_)
+    # per touched tile, the boxes to rescan: all of a tile's first refresh, else those a write may have lowered
+    stale = np.empty((n, nbox), np.bool_)  # rows filled as tiles are first touched
     n_touched = 0
+    checks = 0
     last_pix = -1
     tile = 0
+    j = 0
+    base = 0
+    first = False
     for i in range(n):
         if pix[i] != last_pix:  # a pixel's samples come together: divide once per pixel
             last_pix = pix[i]
             py = last_pix // width
             tile = (py // tile_size) * tiles_x + (last_pix - py * width) // tile_size
-        if slot[tile] == 0:
-            touched[n_touched] = tile
-            stale[n_touched] = exact[tile] == 0
-            n_touched += 1
-            slot[tile] = n_touched
-        j = slot[tile] - 1
-        if not stale[j] and prior[i] >= zmax[tile, box_of[pix[i] * spp + sidx[i]]]:
-            stale[j] = True
+            first = exact[tile] == 0
+            if slot[tile] == 0:
+                touched[n_touched] = tile
+                stale[n_touched, :] = first
+                n_touched += 1
+                slot[tile] = n_touched
+            j = slot[tile] - 1
+            base = last_pix * spp
+        if not first:
+            checks += 1
+            b = box_of[base + sidx[i]]
+            if prior[i] >= zmax[tile, b]:
+                stale[j, b] = True
+    work[RF_CHECKS] += checks
+    work[RF_TILES] += n_touched
     height_px = depth.shape[0] // (width * spp)
     for j in range(n_touched):
         tile = touched[j]
         slot[tile] = 0
-        events[EV_REFRESH] += 1
-        if not stale[j]:
+        mask = stale[j]
+        if not mask.any():
             continue
+        work[RF_SCANS] += 1
         fresh = exact[tile] == 0
         exact[tile] = 1
         zrow = zmax[tile]
         zrow[:] = -np.inf
         tyy = tile // tiles_x
         txx = tile - tyy * tiles_x
+        x0 = txx * tile_size
+        x1 = min(x0 + tile_size, width)
+        read = 0
         for py in range(tyy * tile_size, min((tyy + 1) * tile_size, height_px)):
-            for px in range(txx * tile_size, min((txx + 1) * tile_size, width)):
-                base = (py * width + px) * spp
-                if fresh:  # a loop of its own: fused with the one below it runs about 4x slower
-                    for k in range(base, base + spp):
-                        box_of[k] = _sample_box(st[k], su[k], sv[k], nt, nl)
-                for k in range(base, base + spp):
-                    d = depth[k]
-                    b = box_of[k]
-                    if d > zrow[b]:
-                        zrow[b] = d
+            k0 = (py * width + x0) * spp
+            k1 = (py * width + x1) * spp
+            if fresh:  # a loop of its own: fused with the one below it runs about 4x slower
+                for k in range(k0, k1):
+                    box_of[k] = _sample_box(st[k], su[k], sv[k], nt, nl)
+            # every box is recomputed (those not stale come out as they were): no branch per
+            # sample; only the stale boxes' samples count as read
+            for k in range(k0, k1):
+                d = depth[k]
+                b = box_of[k]
+                read += mask[b]
+                if d > zrow[b]:
+                    zrow[b] = d
+        work[RF_READ] += read
 
 
 class ZCull:
@@ -150,6 +186,7 @@ class ZCull:
 
     name = "zcull"
     events = EVENTS
+    timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, depth_func: str, tile_size: int, width: int, height: int, clear_depth: float,
                  motion: bool = True, lens: bool = True):
@@ -193,10 +230,12 @@ class ZCull:
             out["noread"] = noread[keep]  # depth reads this tile's samples can skip
         return out, ops, events
 
-    def refresh(self, pix: np.ndarray, sidx: np.ndarray, prior: np.ndarray, samples, depth: np.ndarray,
-                events: np.ndarray) -> None:
-        """Refresh the boxes of the tiles touched by the samples ``pix, sidx`` (called by
-        the ROP after each batch; ``prior``: the depth each one replaced, NaN: none)."""
+    def refresh(self, pix: np.ndarray, sidx: np.ndarray, prior: np.ndarray, samples, depth: np.ndarray
+                ) -> np.ndarray:
+        """Refresh the boxes of the tiles touched by the samples ``pix, sidx`` from the ROP's
+        ``depth`` (``prior``: the depth each one replaced, NaN: none); returns the work done,
+        laid out as ``REFRESH_WORK``. Called through ``Rop.refresh_zcull`` only."""
+        work = np.zeros(len(REFRESH_WORK), np.int64)
         if self.active and len(pix):
             if self._buffer is None or self._buffer() is not depth:
                 # a new depth buffer (the next screen region): its tiles start with a full scan
@@ -209,4 +248,5 @@ class ZCull:
             local = pix - samples.row0 * self.width if samples.row0 else pix
             refresh_kernel(local, sidx, prior, self.width, samples.spp, self.tile_size, self.tiles_x, self.nt,
                            self.nl, samples.t, samples.u, samples.v, depth, self.zmax[first:], self.exact[first:],
-                           self.slot[first:], self.box_of, events)
+                           self.slot[first:], self.box_of, work)
+        return work
