@@ -80,11 +80,9 @@ BYTES = {
 }
 #: Compiling the kernels (on a machine's first run; loading them from the
 #: cache takes less), SimPy's traces, pandas tables and the report's figures.
-#: Measured: a 640x360, 20k-triangle run with a cold cache added 383 MB in
-#: all; with the kernels loaded first and only the screen-region kernels
-#: compiled inside the run, 479 MB against 170 MB warm (LLVM's high-water
-#: mark comes on top of what is loaded).
-FIXED_BYTES = 512 << 20
+#: Measured (VmHWM): a 640x360, 20k-triangle run at 16 spp added 529 MB
+#: compiling every kernel from an empty cache, 319 MB loading them.
+FIXED_BYTES = 256 << 20
 
 
 @dataclass(frozen=True)
