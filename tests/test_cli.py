@@ -17,31 +17,9 @@ from PIL import Image
 
 from pipeline_sim.cli import main
 from pipeline_sim.output import linear_to_srgb8, read_exr
+from scenes import moving_sphere, scene_toml
 
-SMALL = """
-[image]
-width = 48
-height = 32
-spp = 4
-seed = 2
-[camera]
-eye = [0.0, 0.5, 4.0]
-look_at = [0.0, 0.5, 0.0]
-fov_y = 45.0
-near = 0.1
-far = 20.0
-[camera.lens]
-radius = 0.05
-focus_distance = 4.0
-[[objects]]
-primitive = "sphere"
-radius = 0.7
-subdivisions = 1
-[objects.open]
-translate = [-0.3, 0.5, 0.0]
-[objects.close]
-translate = [0.3, 0.5, 0.0]
-"""
+SMALL = scene_toml(moving_sphere(), seed=2, lens_radius=0.05)
 
 
 @pytest.fixture

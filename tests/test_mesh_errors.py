@@ -20,6 +20,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pipeline_sim.cli import main
+from scenes import mesh_object, scene_toml
 
 ROOT = Path(__file__).resolve().parent.parent
 MESHES = ROOT / "workloads" / "meshes"
@@ -36,26 +37,13 @@ EXTRA = {
 VALID = {p.suffix: p.read_bytes() for p in MESHES.iterdir() if p.suffix in FORMATS} | EXTRA
 # what the loader may say besides "not a valid <format> file": checks of its own
 OWN_CHECKS = ("mesh file has no triangles", "mesh file has non-finite", "mesh file has face indices out of range")
-SCENE = """[image]
-width = 8
-height = 8
-spp = 1
-[camera]
-eye = [0.0, 0.0, 4.0]
-look_at = [0.0, 0.0, 0.0]
-fov_y = 45.0
-near = 0.1
-far = 20.0
-[[objects]]
-mesh = "{name}"
-"""
 
 
 def check(tmp_path: Path, suffix: str, data: bytes) -> tuple[int, str]:
     mesh = tmp_path / f"broken{suffix}"
     mesh.write_bytes(data)
     scene = tmp_path / "scene.toml"
-    scene.write_text(SCENE.format(name=mesh.name))
+    scene.write_text(scene_toml(mesh_object(mesh.name), width=8, height=8, spp=1, eye_y=0.0))
     err, out = io.StringIO(), io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
         code = main(["check", str(scene)])

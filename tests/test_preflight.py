@@ -22,27 +22,9 @@ from pipeline_sim.cli import main
 from pipeline_sim.config import load_arch
 from pipeline_sim.output import linear_to_srgb8
 from pipeline_sim.preflight import FIXED_BYTES, estimate_memory
+from scenes import moving_sphere, scene_toml
 
-SCENE = """[image]
-width = 48
-height = 32
-spp = 4
-seed = 2
-[camera]
-eye = [0.0, 0.5, 4.0]
-look_at = [0.0, 0.5, 0.0]
-fov_y = 45.0
-near = 0.1
-far = 20.0
-[[objects]]
-primitive = "sphere"
-radius = 0.7
-subdivisions = 1
-[objects.open]
-translate = [-0.3, 0.5, 0.0]
-[objects.close]
-translate = [0.3, 0.5, 0.0]
-"""
+SCENE = scene_toml(moving_sphere(), seed=2)
 
 # modules that load (or compile) the numba kernels: none may be imported by a refused run
 KERNEL_MODULES = ("pipeline_sim.jit", "pipeline_sim.render", "units.sample_tester", "units.triangle_setup",

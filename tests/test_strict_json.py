@@ -17,21 +17,9 @@ import pytest
 
 from pipeline_sim.cli import main
 from pipeline_sim.output import finite_or_none, write_json
+from scenes import mesh_object, scene_toml
 
-SCENE = """[image]
-width = 24
-height = 16
-spp = 4
-seed = 7
-[camera]
-eye = [0.0, 0.0, 4.0]
-look_at = [0.0, 0.0, 0.0]
-fov_y = 45.0
-near = 0.1
-far = 20.0
-[[objects]]
-mesh = "flat.obj"
-"""
+SCENE = scene_toml(mesh_object("flat.obj"), width=24, height=16, seed=7, eye_y=0.0)
 # one triangle whose three vertices lie on a line: it covers nothing
 DEGENERATE_OBJ = "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n"
 

@@ -17,33 +17,10 @@ from hypothesis import strategies as st
 
 from pipeline_sim.errors import UserError
 from pipeline_sim.sweep import HOST_TIMING_FIELDS, load_sweep, point_id, run_sweep, toml_literal
+from scenes import moving_sphere, scene_toml
 
 ROOT = Path(__file__).resolve().parent.parent
 
-SCENE = """
-[image]
-width = 32
-height = 18
-spp = 4
-seed = 2
-[camera]
-eye = [0.0, 0.5, 4.0]
-look_at = [0.0, 0.5, 0.0]
-fov_y = 45.0
-near = 0.1
-far = 20.0
-[camera.lens]
-radius = 0.05
-focus_distance = 4.0
-[[objects]]
-primitive = "sphere"
-radius = 0.7
-subdivisions = {subdivisions}
-[objects.open]
-translate = [-0.3, 0.5, 0.0]
-[objects.close]
-translate = [0.3, 0.5, 0.0]
-"""
 
 TINY = """
 [sweep]
@@ -72,7 +49,7 @@ spp = 16
 
 def _folder(path: Path, sweep: str, subdivisions: int = 1) -> Path:
     path.mkdir(parents=True, exist_ok=True)
-    (path / "scene.toml").write_text(SCENE.format(subdivisions=subdivisions))
+    (path / "scene.toml").write_text(scene_toml(moving_sphere(subdivisions), width=32, height=18, seed=2, lens_radius=0.05))
     (path / "sweep.toml").write_text(sweep)
     return path / "sweep.toml"
 
