@@ -391,6 +391,10 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as exc:
         print(f"pipeline-sim: error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
+    except MemoryError:   # what the estimate could not foresee (docs/outputs.md): one line, not a traceback
+        print("pipeline-sim: error: out of memory: the run needs more than this process may take; lower the "
+              "image size, spp or pipeline.region_samples", file=sys.stderr)
+        return 1
     except OutputError as exc:   # the machine, not the input: a full disk, a folder made read-only mid-run
         print(f"pipeline-sim: error: {exc}", file=sys.stderr)
         return 1

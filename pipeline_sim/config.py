@@ -83,9 +83,7 @@ class PipelineConfig:
         _at_least(where, "region_samples", self.region_samples, 0)
         _positive(where, "clock_ghz", self.clock_ghz)
         _choice(where, "sample_pattern", self.sample_pattern, SAMPLE_PATTERNS)
-        if not 1 <= self.interleave_tuples <= 64:
-            raise UserError(f"{where}.interleave_tuples: must be from 1 to 64 (one bit each in a tile's "
-                            f"tuple mask), got {self.interleave_tuples}")
+        _at_least(where, "interleave_tuples", self.interleave_tuples, 1, 64)   # one bit each in a tile's mask
 
 
 @dataclass
@@ -209,7 +207,8 @@ class ShadingConfig(UnitTiming):
                 f"{where}: cache_entries ({self.cache_entries}) must be a multiple of "
                 f"cache_ways ({self.cache_ways})"
             )
-        _positive(where, "shading_rate", self.shading_rate)
+        # a shading-grid cell from 1/64 of a pixel to 1024 pixels: the grid's cell index stays an int64
+        _positive(where, "shading_rate", self.shading_rate, 1 / 64, 1024.0)
         _positive(where, "shader_cycles", self.shader_cycles)
         _at_least(where, "cores", self.cores, 1)
 
@@ -322,14 +321,21 @@ def _choice(where: str, name: str, value: Any, choices: tuple[str, ...]) -> None
         )
 
 
-def _positive(where: str, name: str, value: float) -> None:
-    if not value > 0 or value != value or value == float("inf"):
-        raise UserError(f"{where}.{name}: must be a positive finite number, got {value}")
+# The cost model's range: a rate or a cost from 1e-6 to 1e9 keeps every cycle count of a frame (at most
+# about 1e10 items, each costing at most 1e9 cycles or 1e6 per unit of rate) far inside a float's exact
+# integers, so timing, its CSV and JSON stay finite; counts up to 2^31 - 1 fit the kernels' int32 indices.
+RATE_RANGE = (1e-6, 1e9)
+MAX_COUNT = 2**31 - 1
 
 
-def _at_least(where: str, name: str, value: int, low: int) -> None:
-    if value < low:
-        raise UserError(f"{where}.{name}: must be at least {low}, got {value}")
+def _positive(where: str, name: str, value: float, low: float = RATE_RANGE[0], high: float = RATE_RANGE[1]) -> None:
+    if not low <= value <= high:   # NaN fails too
+        raise UserError(f"{where}.{name}: must be from {low:g} to {high:g}, got {value}")
+
+
+def _at_least(where: str, name: str, value: int, low: int, high: int = MAX_COUNT) -> None:
+    if not low <= value <= high:
+        raise UserError(f"{where}.{name}: must be from {low} to {high}, got {value}")
 
 
 def _coerce(where: str, key: str, value: Any, default: Any) -> Any:
@@ -341,11 +347,17 @@ def _coerce(where: str, key: str, value: Any, default: Any) -> Any:
     if isinstance(default, int):
         if isinstance(value, bool) or not isinstance(value, int):
             raise UserError(f"{where}.{key}: expected an integer, got {value!r}")
+        if not -2**63 <= value < 2**63:
+            raise UserError(f"{where}.{key}: expected a 64-bit integer, got one of {len(str(abs(value)))} digits")
         return value
     if isinstance(default, float):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise UserError(f"{where}.{key}: expected a number, got {value!r}")
-        return float(value)
+        try:
+            return float(value)
+        except OverflowError:   # an integer of hundreds of digits
+            raise UserError(f"{where}.{key}: expected a finite number, got an integer of "
+                            f"{len(str(abs(value)))} digits") from None
     if isinstance(default, str):
         if not isinstance(value, str):
             raise UserError(f"{where}.{key}: expected a string, got {value!r}")

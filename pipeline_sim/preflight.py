@@ -122,7 +122,7 @@ def estimate_memory(width: int, height: int, spp: int, triangles: int, arch: Arc
     # in flight: one triangle batch's tile records, each of its triangles
     # reaching at most every tile of the region; one tile batch's covered
     # samples, at most its tiles' samples and at most a region's
-    tiles = pcfg.triangles_per_batch * region_tiles * BYTES["tile_record"]
+    tiles = min(pcfg.triangles_per_batch, max(triangles, 1)) * region_tiles * BYTES["tile_record"]
     samples = min(pcfg.tiles_per_batch * ts * ts * spp, region_samples) * BYTES["sample_record"]
     # z-cull's boxes cover the whole frame, as many per tile as motion and a
     # lens may need (the estimate does not know yet whether the draw has them)
@@ -140,18 +140,48 @@ def estimate_memory(width: int, height: int, spp: int, triangles: int, arch: Arc
     return MemoryEstimate(parts)
 
 
+def _cgroup_room() -> list[int]:
+    """What the memory cgroups this process is in leave it (v2 ``memory.max``, v1
+    ``memory.limit_in_bytes``), found through /proc/self/cgroup."""
+    room = []
+    try:
+        lines = Path("/proc/self/cgroup").read_text().splitlines()
+    except OSError:
+        return room
+    for line in lines:
+        _, controllers, path = line.split(":", 2)
+        if controllers == "":            # v2: one unified hierarchy
+            base, files = Path("/sys/fs/cgroup") / path.lstrip("/"), ("memory.max", "memory.current")
+        elif "memory" in controllers.split(","):
+            base, files = (Path("/sys/fs/cgroup/memory") / path.lstrip("/"),
+                           ("memory.limit_in_bytes", "memory.usage_in_bytes"))
+        else:
+            continue
+        for folder in (base, *base.parents):   # the limit may be set on a parent group
+            try:
+                limit = (folder / files[0]).read_text().strip()
+                used = int((folder / files[1]).read_text())
+            except (OSError, ValueError):
+                continue
+            if limit != "max" and int(limit) < 1 << 62:
+                room.append(int(limit) - used)
+            if folder == Path("/sys/fs/cgroup") or folder == Path("/sys/fs/cgroup/memory"):
+                break
+    return room
+
+
 def available_memory() -> int:
-    """Bytes this process may still take: the system's available memory, or
-    less when a cgroup (v2) memory limit leaves less."""
+    """Bytes this process may still take: the system's available memory, or less when a memory
+    cgroup (v1 or v2) or the process's address-space limit (``ulimit -v``) leaves less."""
+    import resource
+
     import psutil
 
-    free = psutil.virtual_memory().available
-    try:
-        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
-        used = int(Path("/sys/fs/cgroup/memory.current").read_text())
-    except (OSError, ValueError):
-        return free
-    return free if limit == "max" else min(free, int(limit) - used)
+    room = [psutil.virtual_memory().available, *_cgroup_room()]
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft != resource.RLIM_INFINITY:
+        room.append(soft - psutil.Process().memory_info().vms)
+    return max(0, min(room))
 
 
 def check_samples(spp: int, arch: ArchConfig, where: str) -> None:

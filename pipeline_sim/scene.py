@@ -539,7 +539,10 @@ class _Reader:
     def number(self, v: Any, key: str) -> float:
         if type(v) not in (int, float):
             raise self.error(key, f"expected a number, got {_type_name(v)}")
-        x = float(v)
+        try:
+            x = float(v)
+        except OverflowError:   # an integer of hundreds of digits
+            raise self.error(key, f"expected a finite number, got an integer of {len(str(abs(v)))} digits") from None
         if not math.isfinite(x):
             raise self.error(key, f"expected a finite number, got {v}")
         return x
@@ -1233,7 +1236,7 @@ def _parse_light(r: _Reader, data: dict) -> Light:
         direction = r.numbers(tbl.get("direction", list(DEFAULT_LIGHT_DIRECTION)), "light.direction", 3)
         if not np.any(direction):
             raise r.error("light.direction", "must not be the zero vector")
-        direction = direction * 2.0 ** -math.frexp(np.abs(direction).max())[1]  # exact; keeps 1e300 in range
+        direction = np.ldexp(direction, -math.frexp(np.abs(direction).max())[1])  # exact; 1e300 and 1e-320 in range
         direction = direction / np.linalg.norm(direction)
     else:
         if "direction" in tbl:

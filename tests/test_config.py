@@ -364,3 +364,40 @@ def test_the_docs_table_of_effects_matches_the_declarations(root):
             continue
         listed_in = [e for e, cell in rows.items() if f"`{path}`" in cell]
         assert listed_in == [effect], (path, listed_in)
+
+
+@pytest.mark.parametrize("value", ["1e-308", "1e308", "1" + "0" * 400, "-1", "nan"])
+def test_every_numeric_setting_is_bounded_so_the_cost_model_stays_finite(value):
+    """Each number an architecture takes is refused in one line outside its range (a throughput of 1e-308
+    made the frame's cycles infinite, and the run died writing run.json after the whole simulation)."""
+    arch = load_arch()
+    for section in SECTION_NAMES:
+        for f in dataclasses.fields(getattr(arch, section)):
+            default = getattr(getattr(arch, section), f.name)
+            if isinstance(default, bool) or not isinstance(default, (int, float)):
+                continue
+            if isinstance(default, int) and value in ("1e-308", "1e308", "nan"):
+                continue   # not an integer: refused for its type already
+            if f.name.startswith("clip_") and value in ("1e-308", "-1"):
+                continue   # a clip plane may sit anywhere in [0, 1] or [-1, 1]
+            with pytest.raises(UserError) as info:
+                apply_overrides(arch, [f"{section}.{f.name}={value}"])
+            assert "\n" not in str(info.value) and f.name in str(info.value)
+            assert len(str(info.value)) < 300
+
+
+def test_the_cost_model_range_keeps_frame_cycles_finite(root):
+    """At the ends of the range the simulation's timing is finite (and so is every file written from it)."""
+    import math
+
+    from pipeline_sim.render import render_scene
+    from pipeline_sim.scene import load_scene
+
+    s = load_scene(root / "workloads/scenes/default.toml")
+    s = s.replace(image=dataclasses.replace(s.image, width=32, height=18, spp=1))
+    slow = [f"{u}.throughput=1e-6" for u in ("triangle_setup", "tile_traverser", "tile_test", "zcull",
+                                              "sample_tester", "shading", "rop")]
+    slow += ["shading.shader_cycles=1e9", "rop.bandwidth=1e-6", f"rop.latency={2**31 - 1}"]
+    result = render_scene(s, load_arch(overrides=slow))
+    assert math.isfinite(result.timing.frame_cycles) and result.timing.frame_cycles > 1e9
+    assert np.isfinite(result.timing.units[["busy", "starved", "blocked"]].to_numpy(float)).all()

@@ -180,3 +180,25 @@ def test_png_conversion_takes_no_float_copy_of_the_whole_image():
     srgb = np.where(image[..., :3] <= 0.0031308, 12.92 * image[..., :3].astype(np.float64),
                     1.055 * np.power(image[..., :3].astype(np.float64), 1 / 2.4) - 0.055)
     np.testing.assert_array_equal(out, np.round(srgb * 255).astype(np.uint8))
+
+
+def test_the_address_space_limit_counts_as_memory(tmp_path):
+    """`ulimit -v` leaves a process less than the machine has: the estimate is checked against that."""
+    code = ("import resource; resource.setrlimit(resource.RLIMIT_AS, (3 << 30, resource.RLIM_INFINITY));"
+            "from pipeline_sim.preflight import available_memory; print(available_memory())")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    assert 0 <= int(res.stdout) < 3 << 30
+
+
+def test_running_out_of_memory_anyway_is_one_line(scene, tmp_path, monkeypatch, capsys):
+    import pipeline_sim.render as render
+
+    def exhausted(*args, **kwargs):
+        raise MemoryError
+
+    monkeypatch.setattr(render, "render_scene", exhausted)
+    assert main(["run", str(scene), "--out", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "out of memory" in err
+    assert not (tmp_path / "out").exists() and not list(tmp_path.glob(".out.*"))

@@ -891,3 +891,18 @@ def test_documented_example_loads(tmp_path):
     assert scene.has_lens and scene.moving
     assert scene.objects[0].name == "ball"
     np.testing.assert_allclose(scene.objects[0].transform_close[:3, 3], [0.6, 0.5, 0.0])
+
+
+def test_a_number_beyond_any_float_and_a_subnormal_light_direction(tmp_path):
+    """A 400-digit integer is one line naming the key (float() overflowed, a traceback); a light direction of
+    subnormal components is a direction like any other (scaling it by a power of two overflowed)."""
+    from scenes import moving_sphere, scene_toml
+
+    path = tmp_path / "s.toml"
+    path.write_text(scene_toml(moving_sphere().replace("radius = 0.7", "radius = 1" + "0" * 400)))
+    with pytest.raises(UserError, match=r"radius.*401 digits") as info:
+        load_scene(path)
+    assert "\n" not in str(info.value)
+    path.write_text(scene_toml(moving_sphere()) + "[light]\ndirection = [1e-320, -1e-320, 0.0]\n")
+    direction = load_scene(path).light.direction
+    np.testing.assert_allclose(direction, [2**-0.5, -(2**-0.5), 0.0], rtol=1e-12)
