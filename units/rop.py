@@ -21,8 +21,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from pipeline_sim.config import BLEND_MODES, DEPTH_FUNCS
-from pipeline_sim.counters import N_OPS, OP_ADD, OP_CMP
+from pipeline_sim.definitions import BLEND_MODES, DEPTH_FUNCS, N_OPS, OP_ADD, OP_CMP
 from units.zcull import RF_CHECKS, RF_READ, RF_SCANS, RF_TILES
 
 EVENTS = ("depth_tests", "depth_passed", "depth_reads_skipped", "samples_written", "zcull_refresh_tiles",

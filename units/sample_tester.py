@@ -25,7 +25,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from pipeline_sim.counters import COMMON, N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+from pipeline_sim.definitions import COMMON, N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
 
 EVENTS = ("samples_tested", "samples_covered", "samples_in_range", "pixels_visited",
           "tests_2d", "tests_3d_xyt", "tests_4d_xyuv", "tests_5d")
