@@ -17,7 +17,7 @@ swap them for the duration of one call and restore them afterwards.
 * ``simpy_only(script)``: the SimPy layer alone: ``pipeline.simulate`` with
   steps that do no work and return the recorded output counts and cycles.
 * ``unit_timers()``: wall time of every unit's ``run``, the sample tester's
-  numba kernel, sample generation and the resolve.
+  numba kernel, sample generation and the resolves.
 """
 
 from __future__ import annotations
@@ -179,6 +179,8 @@ def unit_timers(timers: Timers):
         for name, cls in UNIT_CLASSES.items():
             stack.enter_context(patched(cls, "run", _timed(cls.run, timers, name)))
         stack.enter_context(patched(Rop, "resolve", _timed(Rop.resolve, timers, "resolve")))
+        # a frame in several screen regions resolves each one as the ROP moves on to the next
+        stack.enter_context(patched(Rop, "open_region", _timed(Rop.open_region, timers, "resolve")))
         stack.enter_context(patched(sample_tester_mod, "sample_test_kernel",
                                     _timed(sample_tester_mod.sample_test_kernel, timers, "sample_test_kernel")))
         stack.enter_context(patched(render, "make_samples", _timed(render.make_samples, timers, "make_samples")))

@@ -98,7 +98,9 @@ def capture(scenes=SCENES, scene_dir: Path = ROOT / "workloads" / "scenes") -> l
             return _orig(self, tiles)
 
         with patched(SampleTester, "run", run):
-            run_pass(default_pass(scene_path=scene_dir / f"{name}.toml"))
+            res = run_pass(default_pass(scene_path=scene_dir / f"{name}.toml"))
+        # the batches are replayed against the samples each tester holds after the pass: its frame's
+        assert res.regions.count == 1, f"{name}: the frame must be one screen region"
         for tester, tiles in got:
             dims = record_dims(tester, tiles["tri"])
             for d in range(4):

@@ -8,25 +8,23 @@ The public API::
     result.image, result.counters, result.timing.units
 """
 
-from pipeline_sim.config import ArchConfig, load_arch
-from pipeline_sim.errors import UserError
+import importlib
+
+# name -> module: imported on first use, so that importing the package (as every unit does, for
+# pipeline_sim.definitions) imports nothing else of it, and does not compile or import numba
+_LAZY = {name: module for module, names in (
+    ("config", ("ArchConfig", "load_arch")),
+    ("errors", ("UserError",)),
+    ("scene", ("load_scene", "parse_scene", "Scene")),
+    ("render", ("render_scene", "run_pass", "run_passes", "RenderPass", "PassResult", "scene_pass")),
+    ("draw", ("build_draw", "draw_from_clip", "Draw")),
+) for name in names}
 
 
-def __getattr__(name):  # lazy: importing the package does not compile or import numba
-    if name in ("load_scene", "parse_scene", "Scene"):
-        from pipeline_sim import scene
-
-        return getattr(scene, name)
-    if name in ("render_scene", "run_pass", "run_passes", "RenderPass", "PassResult", "scene_pass"):
-        from pipeline_sim import render
-
-        return getattr(render, name)
-    if name in ("build_draw", "draw_from_clip", "Draw"):
-        from pipeline_sim import draw
-
-        return getattr(draw, name)
-    raise AttributeError(name)
+def __getattr__(name):
+    if name not in _LAZY:
+        raise AttributeError(name)
+    return getattr(importlib.import_module(f"pipeline_sim.{_LAZY[name]}"), name)
 
 
-__all__ = ["ArchConfig", "UserError", "load_arch", "load_scene", "parse_scene", "render_scene", "run_pass",
-           "run_passes", "RenderPass", "PassResult", "scene_pass", "build_draw", "draw_from_clip", "Draw"]
+__all__ = list(_LAZY)

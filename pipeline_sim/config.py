@@ -29,13 +29,12 @@ from typing import Any
 
 import numpy as np
 
+from pipeline_sim.definitions import BLEND_MODES, DEPTH_FUNCS
 from pipeline_sim.errors import UserError, did_you_mean, unknown_key_error
 from pipeline_sim.sampling import PATTERNS
 
 DEFAULT_ARCH_PATH = Path(__file__).with_name("data") / "default_arch.toml"
 
-DEPTH_FUNCS = ("less", "lequal", "greater", "gequal", "equal", "always", "never")
-BLEND_MODES = ("replace", "add", "min", "max")
 # bbox: every tile of the moving, defocused bounds and every sample of the
 # triangle's time span (the baseline of Wu13 and Munkberg11); hierarchical: the tile
 # tests of Munkberg11 §4 (moving box, linearized or quadratic edges) and lens bounds;

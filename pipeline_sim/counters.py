@@ -22,11 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-# Arithmetic classes, in the order kernels write them (indices 0..4).
-OP_ADD, OP_MUL, OP_MADD, OP_RCP, OP_CMP = range(5)
-ARITHMETIC = ("add", "mul", "madd", "rcp", "compare")
-N_OPS = len(ARITHMETIC)
-COMMON = ("records_in", "records_out", *ARITHMETIC, "bytes_read", "bytes_written")
+# the arithmetic classes and common counters are the units' (defined with what else they share)
+from pipeline_sim.definitions import COMMON, N_OPS
 
 
 @dataclass

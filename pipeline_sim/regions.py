@@ -20,13 +20,20 @@ the shading cache's contents (its grid is in the reference view, where a
 moving or defocused triangle's cell can take samples from two regions: hits
 and misses, and, for a shader that reads the requesting sample's position
 or depth, which sample's inputs a cell's color takes), and the cycles.
+
+The region is bookkept here and nowhere else: every batch carries the region
+it is bound for (``RegionBatch``), from the bins to the ROP, and each unit
+that holds a region's samples or buffers follows its own batches with a
+``RegionCursor``, which tells it when they move on to another region. The
+units are handed that region's rows and samples; none of them works out a
+region from the rows of its records.
 """
 
 from __future__ import annotations
 
 from collections import OrderedDict
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -49,9 +56,6 @@ class RegionPlan:
         """Rows ``[r0, r1)`` of ``region``."""
         r0 = region * self.rows
         return r0, min(self.height, r0 + self.rows)
-
-    def region_of_row(self, row: int) -> int:
-        return int(row) // self.rows
 
 
 def row_step(tile_size: int, coarse_factor: int, shading_rate: float | None) -> int:
@@ -77,14 +81,16 @@ def plan_regions(width: int, height: int, spp: int, region_samples: int, step: i
 
 
 @dataclass
-class TriangleBatch:
-    """A batch of triangle ids bound for one screen region."""
+class RegionBatch:
+    """A batch bound for one screen region: triangle ids (an array), or tile
+    or sample records (a structure-of-arrays dict)."""
 
     region: int
-    ids: np.ndarray
+    records: Any
 
     def __len__(self) -> int:
-        return len(self.ids)
+        r = self.records
+        return len(next(iter(r.values()), ())) if isinstance(r, dict) else len(r)
 
 
 def bin_triangles(bounds: np.ndarray, ids: np.ndarray, plan: RegionPlan) -> list[np.ndarray]:
@@ -118,17 +124,6 @@ class RegionSamples:
         self._sets: OrderedDict[int, SampleSet] = OrderedDict()
         self.made = 0
 
-    @classmethod
-    def of(cls, samples: SampleSet | RegionSamples, plan: RegionPlan | None = None) -> RegionSamples:
-        """``samples`` itself when it is a ``RegionSamples``; a ready sample set
-        as the only region (``plan``, if given, must then be a single region)."""
-        if isinstance(samples, RegionSamples):
-            return samples
-        if plan is not None and plan.count > 1:
-            raise ValueError("a ready sample set is one region; several regions need a RegionSamples")
-        rows = samples.row0 + samples.height
-        return cls(RegionPlan(samples.width, rows, max(rows, 1)), lambda bounds: samples)
-
     def region(self, region: int) -> SampleSet:
         s = self._sets.get(region)
         if s is None:
@@ -141,14 +136,36 @@ class RegionSamples:
             self._sets.move_to_end(region)
         return s
 
-    def for_row(self, row: int) -> SampleSet:
-        """The samples of the region holding image row ``row``."""
-        return self.region(self.plan.region_of_row(row))
+
+class RegionCursor:
+    """Which screen region one unit is in: batches reach a unit region by
+    region, and when the first batch of another region arrives, ``enter(region)``
+    hands the unit what it needs of it (before the batch is run).
+
+    ``region``: where the unit starts (-1: nowhere, it enters the region of
+    its first batch)."""
+
+    def __init__(self, enter: Callable[[int], None], region: int = -1):
+        self.region = region
+        self._enter = enter
+
+    def move_to(self, region: int) -> None:
+        """The next batch is bound for ``region``."""
+        if region != self.region:
+            self.region = region
+            self._enter(region)
 
 
-def samples_for_row(regions: RegionSamples, held: SampleSet | None, row: int | None) -> SampleSet:
-    """``held`` if it holds image row ``row``, else the samples of the region
-    that does; ``row`` None (an empty batch): ``held``, or region 0's samples."""
-    if held is not None and (row is None or held.row0 <= row < held.row0 + held.height):
-        return held
-    return regions.for_row(0 if row is None else row)
+def region_step(step: Callable[[Any], tuple[list, float]], cursor: RegionCursor | None = None
+                ) -> Callable[[RegionBatch], tuple[list[RegionBatch], float]]:
+    """A stage step over ``RegionBatch``es made of ``step``, a step over records:
+    the unit's ``cursor`` (if it has one) moves to each batch's region before
+    ``step`` runs on its records, and the outputs go on bound for that region."""
+
+    def run(batch: RegionBatch) -> tuple[list[RegionBatch], float]:
+        if cursor is not None:
+            cursor.move_to(batch.region)
+        outputs, cycles = step(batch.records)
+        return [RegionBatch(batch.region, o) for o in outputs], cycles
+
+    return run

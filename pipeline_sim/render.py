@@ -24,7 +24,8 @@ from pipeline_sim.counters import CounterSet, counters_frame
 from pipeline_sim.draw import Draw, build_draw
 from pipeline_sim.errors import UserError
 from pipeline_sim.pipeline import Stage, TimingResult, chunks, count_records, cycles_for, run_in_order, simulate
-from pipeline_sim.regions import RegionPlan, RegionSamples, TriangleBatch, bin_triangles, plan_regions, row_step
+from pipeline_sim.regions import (RegionBatch, RegionCursor, RegionPlan, RegionSamples, bin_triangles, plan_regions,
+                                  region_step, row_step)
 from pipeline_sim.sampling import make_samples
 from pipeline_sim.shaders import standard_params, standard_shader
 from units.rop import Rop
@@ -161,10 +162,17 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
                   motion or not spec, lens or not spec)
     if conservative:
         zcull.active = False
-    tester = SampleTester(arch.sample_tester, setup.table, samples, ts, arch.triangle_setup.backface_culling, spec)
-    shading = Shading(arch.shading, draw, setup.table, samples, p.shader, p.params, texture, conservative)
-    rop = Rop(arch.rop, draw.width, draw.height, spp, p.clear_color, p.clear_depth,
-              zcull if zcull.active else None, samples, plan=plan, keep_depth=keep_depth)
+    tester = SampleTester(arch.sample_tester, setup.table, None, ts, arch.triangle_setup.backface_culling, spec)
+    shading = Shading(arch.shading, draw, setup.table, None, p.shader, p.params, texture, conservative)
+    rop = Rop(arch.rop, draw.width, draw.height, spp, p.clear_color, p.clear_depth, zcull if zcull.active else None,
+              first if zcull.active else None, rows=plan.bounds(0), keep_depth=keep_depth)
+    # each unit that holds a region's samples or buffers is handed them as its batches move on; the
+    # sample tester and shading take a region's samples with its first batch, the ROP (which needs
+    # samples only to refresh z-cull) starts with region 0's buffers
+    tester_at = RegionCursor(lambda r: tester.use_samples(samples.region(r)))
+    shading_at = RegionCursor(lambda r: shading.use_samples(samples.region(r)))
+    rop_at = RegionCursor(lambda r: rop.open_region(plan.bounds(r), samples.region(r) if zcull.active else None),
+                          region=0)
     cs = {u.name: CounterSet(u.name, u.events, u.timing_dependent)
           for u in (setup, traverser, tile_test, zcull, tester, shading, rop)}
     pcfg = arch.pipeline
@@ -173,10 +181,10 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     presetup = plan.count > 1  # several regions: triangles are set up before binning
     kept = np.zeros(draw.n, np.bool_)  # and survived setup
 
-    def step_setup(batch: TriangleBatch):
+    def step_setup(batch: RegionBatch):
         # a triangle is set up once, in the first region it reaches; later
         # regions fetch its setup results from the bin at no cost
-        ids = batch.ids
+        ids = batch.records
         new = ids[~set_up[ids]]
         if len(new):
             set_up[new] = True
@@ -196,18 +204,19 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
                 progress(done[0], draw.n)
         survivors = ids[kept[ids]]
         cfg = arch.triangle_setup
-        return ([TriangleBatch(batch.region, survivors)] if len(survivors) else []), cycles_for(
+        return ([RegionBatch(batch.region, survivors)] if len(survivors) else []), cycles_for(
             len(new), cfg.throughput, cfg.instances)
 
-    def step_traverse(batch: TriangleBatch):
-        out, ops, ev = traverser.run(batch.ids, plan.bounds(batch.region))
-        ids = batch.ids
+    def step_traverse(batch: RegionBatch):
+        ids = batch.records
+        out, ops, ev = traverser.run(ids, plan.bounds(batch.region))
         c = cs["tile_traverser"]
         n = len(out["tri"])
         c.add_ops(ops), c.add_events(ev), count_records(c, len(ids), n)
         c.add("bytes_written", n * TILE_RECORD_BYTES)
         cfg = arch.tile_traverser
-        return chunks(out, pcfg.tiles_per_batch), cycles_for(ev[0] + n, cfg.throughput, cfg.instances)
+        return ([RegionBatch(batch.region, part) for part in chunks(out, pcfg.tiles_per_batch)],
+                cycles_for(ev[0] + n, cfg.throughput, cfg.instances))
 
     def step_tile_test(tiles):
         out, ops, ev = tile_test.run(tiles)
@@ -288,14 +297,16 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         pending.clear()
         return cyc
 
+    # batches carry their region from the bins on; the steps after the traverser run on records
     stage_defs = [
         ("triangle_setup", step_setup, arch.triangle_setup.latency),
         ("tile_traverser", step_traverse, arch.tile_traverser.latency),
-        ("tile_test", step_tile_test, arch.tile_test.latency),
-        ("zcull", step_zcull, arch.zcull.latency),
-        ("sample_tester", step_sample_test, arch.sample_tester.latency),
-        ("shading", step_shade, arch.shading.latency),
-        ("rop", step_rop, arch.rop.latency),
+        ("tile_test", region_step(step_tile_test), arch.tile_test.latency),
+        ("zcull", region_step(step_zcull), arch.zcull.latency),
+        ("sample_tester", region_step(step_sample_test, tester_at), arch.sample_tester.latency),
+        # conservative shading reads no samples
+        ("shading", region_step(step_shade, None if conservative else shading_at), arch.shading.latency),
+        ("rop", region_step(step_rop, rop_at), arch.rop.latency),
     ]
     bypassed = set()
     if not zcull.active:
@@ -316,7 +327,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
             c.add_ops(ops), c.add_events(ev)
     bins = bin_triangles(setup.table.bounds, ids, plan)
     tpb = pcfg.triangles_per_batch
-    tri_batches = [TriangleBatch(r, b[i : i + tpb]) for r, b in enumerate(bins) for i in range(0, len(b), tpb)]
+    tri_batches = [RegionBatch(r, b[i : i + tpb]) for r, b in enumerate(bins) for i in range(0, len(b), tpb)]
     # FIFOs hold queue_depth batches of the shipped default size, counted in
     # records: a batch size then sets only the granularity of the timing
     default = PipelineConfig()

@@ -24,20 +24,11 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-INPUTS = (
-    "px", "py", "pz",  # world position of the shading point
-    "nx", "ny", "nz",  # world normal (unit)
-    "r", "g", "b",  # interpolated vertex color
-    "t", "u", "v",  # shading time and lens position
-    "x", "y",  # screen position in pixels (row 0 at the top)
-    "depth",  # z/w of the sample (standard) or of the pixel centre (conservative: z^ midpoint)
-    "material", "object", "triangle",
-    "t_lo", "t_hi", "u_lo", "u_hi", "v_lo", "v_hi", "z_lo", "z_hi",  # conservative mode only
-)
-N_INPUTS = len(INPUTS)
-(IN_PX, IN_PY, IN_PZ, IN_NX, IN_NY, IN_NZ, IN_R, IN_G, IN_B, IN_T, IN_U, IN_V, IN_X, IN_Y, IN_DEPTH,
- IN_MATERIAL, IN_OBJECT, IN_TRIANGLE, IN_T_LO, IN_T_HI, IN_U_LO, IN_U_HI, IN_V_LO, IN_V_HI, IN_Z_LO,
- IN_Z_HI) = range(N_INPUTS)
+# the input layout is the shading unit's; shaders, a workload's own too, take all of it from here
+from pipeline_sim.definitions import (IN_B, IN_DEPTH, IN_G, IN_MATERIAL, IN_NX, IN_NY, IN_NZ, IN_OBJECT, IN_PX,
+                                      IN_PY, IN_PZ, IN_R, IN_T, IN_T_HI, IN_T_LO, IN_TRIANGLE, IN_U, IN_U_HI,
+                                      IN_U_LO, IN_V, IN_V_HI, IN_V_LO, IN_X, IN_Y, IN_Z_HI, IN_Z_LO, INPUTS,
+                                      N_INPUTS)
 
 # parameters of the standard shader
 LIGHT_DIRECTIONAL, LIGHT_POINT = 0.0, 1.0

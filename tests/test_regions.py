@@ -1,14 +1,17 @@
 """Screen regions: the plan, the bins and region-by-region rendering against whole frames."""
 
 import dataclasses
+import itertools
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from pipeline_sim import render
 from pipeline_sim.config import load_arch
-from pipeline_sim.regions import RegionPlan, RegionSamples, bin_triangles, plan_regions, row_step
+from pipeline_sim.regions import (RegionBatch, RegionCursor, RegionPlan, RegionSamples, bin_triangles, plan_regions,
+                                  region_step, row_step)
 from pipeline_sim.render import render_scene
 from pipeline_sim.sampling import make_samples
 from pipeline_sim.scene import load_scene
@@ -29,9 +32,6 @@ def test_plan_cuts_whole_steps_within_budget(width, height, spp, budget, step):
         assert plan.rows * width * spp <= budget or plan.rows == step
         # as large as the budget allows
         assert (plan.rows + step) * width * spp > budget
-    for row in range(0, height, max(1, height // 7)):
-        r0, r1 = plan.bounds(plan.region_of_row(row))
-        assert r0 <= row < r1
 
 
 def test_row_step_meets_the_shading_grid():
@@ -87,7 +87,34 @@ def test_region_samples_are_slices_of_the_frame_and_come_back_identical():
         for name in ("x", "y", "u", "v", "t"):
             np.testing.assert_array_equal(getattr(s, name), getattr(whole, name)[k])
     assert regions.made == len(order)
-    assert regions.for_row(39) is regions.region(2)
+
+
+@given(start=st.integers(-1, 4), regions=st.lists(st.integers(0, 4), max_size=30))
+def test_a_cursor_enters_each_run_of_a_region_once(start, regions):
+    """``enter`` is called at each change of region, with the new one: the
+    runs of equal regions after the starting one (brute force: groupby)."""
+    entered = []
+    cursor = RegionCursor(entered.append, region=start)
+    for r in regions:
+        cursor.move_to(r)
+        assert cursor.region == r
+    assert entered == [r for r, _ in itertools.groupby([start] + regions)][1:]
+
+
+def test_a_region_step_moves_the_cursor_first_and_keeps_the_region():
+    log = []
+    cursor = RegionCursor(lambda r: log.append(("enter", r)))
+
+    def step(records):
+        log.append(("step", len(records["a"])))
+        return [{"a": records["a"][:1]}, {"a": records["a"][1:]}], 7.0
+
+    run = region_step(step, cursor)
+    out, cycles = run(RegionBatch(3, {"a": np.arange(5)}))
+    out2, _ = run(RegionBatch(3, {"a": np.arange(2)}))
+    assert log == [("enter", 3), ("step", 5), ("step", 2)] and cycles == 7.0
+    assert [(b.region, len(b)) for b in out + out2] == [(3, 1), (3, 4), (3, 1), (3, 1)]
+    assert len(RegionBatch(0, np.arange(6))) == 6 and len(RegionBatch(0, {})) == 0
 
 
 def _small(root, name, **image):
@@ -163,3 +190,49 @@ def test_region_size_is_checked(tmp_path):
     arch.pipeline.region_samples = -1
     with pytest.raises(UserError, match="region_samples"):
         arch.validate()
+
+
+@pytest.mark.parametrize("case", ["hierarchical", "per_sample_quadratic", "conservative"])
+@pytest.mark.parametrize("refresh", ["timed", "ordered"])
+def test_units_hold_the_region_of_every_batch_they_run(root, monkeypatch, case, refresh):
+    """The pipeline hands the sample tester, shading and the ROP the samples
+    and buffers of each region as their batches move on: every record a unit
+    runs lies in the rows it holds then (from the records themselves), and
+    what it holds is a region of the plan."""
+    held = {"sample_tester": [], "shading": [], "rop": []}  # (rows the unit holds, rows of the batch's records)
+
+    def rows_of(s):
+        return s.row0, s.row0 + s.height
+
+    class Tester(render.SampleTester):
+        def run(self, tiles):
+            held["sample_tester"].append((rows_of(self.samples), tiles["ty"] * self.tile_size))
+            return super().run(tiles)
+
+    class Shading(render.Shading):
+        def run(self, batch):
+            if not self.conservative:
+                held["shading"].append((rows_of(self.samples), batch["pix"] // self.draw.width))
+            return super().run(batch)
+
+    class Rop(render.Rop):
+        def run(self, batch):
+            if self.samples is not None:
+                assert rows_of(self.samples) == self.rows
+            held["rop"].append((self.rows, batch["pix"] // self.width))
+            return super().run(batch)
+
+    for name, cls in (("SampleTester", Tester), ("Shading", Shading), ("Rop", Rop)):
+        monkeypatch.setattr(render, name, cls)
+    scene = _small(root, "default", width=120, height=72, spp=4)
+    res = render_scene(scene, _arch(CASES[case], 120 * 20, zcull=True), zcull_refresh=refresh)  # 16-20 rows
+    plan = res.regions
+    bounds = [plan.bounds(r) for r in range(plan.count)]
+    for unit, log in held.items():
+        if case == "conservative" and unit != "rop":  # no sample tester, shading reads no samples
+            assert not log
+            continue
+        for rows, record_rows in log:
+            assert rows in bounds
+            assert rows[0] <= record_rows.min() and record_rows.max() < rows[1], (unit, rows)
+        assert len({rows for rows, _ in log}) > 1, unit  # regions without records are skipped

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from pipeline_sim.config import BLEND_MODES, DEPTH_FUNCS, RopConfig
-from pipeline_sim.counters import N_OPS, OP_ADD, OP_CMP
+from pipeline_sim.definitions import N_OPS, OP_ADD, OP_CMP
 from units.rop import EVENTS, Rop, rop_kernel
 
 DEPTH_CMP = {

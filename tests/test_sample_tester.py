@@ -179,7 +179,7 @@ def reference_run(tester, tiles):
 def assert_tester_matches_reference(tester, tiles):
     """The tester's covered samples (bit for bit, in order), events and
     arithmetic counters equal the plain loop's."""
-    from pipeline_sim.counters import N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+    from pipeline_sim.definitions import N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
     from units.sample_tester import COVER_OPS_MADD, COVER_OPS_MUL, COVER_OPS_RCP, EVENTS, TEST_OPS_MADD, TEST_OPS_MUL
 
     got, ops, events = tester.run(tiles)

@@ -255,12 +255,14 @@ def test_refresh_matches_brute_force_after_every_batch(func, depth_write, slices
     plan = RegionPlan(w, h, rows)
     regions = RegionSamples(plan, lambda r: make_samples(w, h, spp, 5, lens=True, motion=True, rows=r))
     zcull = zc.ZCull(cfg, func, ts, w, h, 1.0)
-    rop = Rop(RopConfig(depth_test=func, depth_write=depth_write), w, h, spp, (0, 0, 0, 1), 1.0, zcull, regions,
-              plan=plan)
+    rop = Rop(RopConfig(depth_test=func, depth_write=depth_write), w, h, spp, (0, 0, 0, 1), 1.0, zcull,
+              regions.region(0), rows=plan.bounds(0))
     levels = np.array([0.0, -0.0, 0.25, 0.5, 0.5, 0.75, 1.0], np.float32)
     for region in range(plan.count):
         r0, r1 = plan.bounds(region)
         samples = regions.region(region)
+        if region:
+            rop.open_region((r0, r1), samples)
         t0 = r0 // ts * zcull.tiles_x
         box = [brute_box(samples, k, slices, boxes) for k in range(len(samples.t))]
         scanned = set()  # tiles refreshed from this region's depth buffer

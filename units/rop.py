@@ -11,8 +11,9 @@ tiles a batch wrote are refreshed from the depth buffer through
 comparisons are the ROP's work.
 
 The multisample buffers hold one screen region (``pipeline_sim.regions``)
-at a time: when the first batch of the next region arrives, the current one
-is resolved into the image and its buffers are dropped.
+at a time: when the pipeline moves the ROP on to the next region
+(``open_region``), the current one is resolved into the image and its
+buffers are dropped.
 """
 
 from __future__ import annotations
@@ -20,9 +21,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from pipeline_sim.config import BLEND_MODES, DEPTH_FUNCS
-from pipeline_sim.counters import N_OPS, OP_ADD, OP_CMP
-from pipeline_sim.regions import RegionPlan, RegionSamples
+from pipeline_sim.definitions import BLEND_MODES, DEPTH_FUNCS, N_OPS, OP_ADD, OP_CMP
 from units.zcull import RF_CHECKS, RF_READ, RF_SCANS, RF_TILES
 
 EVENTS = ("depth_tests", "depth_passed", "depth_reads_skipped", "samples_written", "zcull_refresh_tiles",
@@ -111,10 +110,11 @@ def resolve_kernel(color_buf, spp, out):
 class Rop:
     """Functional model of the ROP and the multisample render target.
 
-    ``plan``: the screen regions (default: the frame as one region);
-    ``samples``: the samples, needed to refresh z-cull's boxes;
-    ``keep_depth``: also keep the whole frame's per-sample depth
-    (``frame_depth``); with one region it is the depth buffer itself.
+    ``rows``: the image rows ``[r0, r1)`` of the first screen region (default:
+    the whole frame, then the only region); ``samples``: that region's
+    samples, needed to refresh z-cull's boxes; ``keep_depth``: also keep the
+    whole frame's per-sample depth (``frame_depth``) over several regions
+    (with one region it is the depth buffer itself).
     """
 
     name = "rop"
@@ -122,7 +122,7 @@ class Rop:
     timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, width: int, height: int, spp: int, clear_color, clear_depth: float, zcull=None,
-                 samples=None, plan: RegionPlan | None = None, keep_depth: bool = True):
+                 samples=None, rows: tuple[int, int] | None = None, keep_depth: bool = True):
         self.config = config
         self.width = width
         self.height = height
@@ -132,45 +132,46 @@ class Rop:
         self.func = DEPTH_FUNCS.index(config.depth_test)
         self.blend = BLEND_MODES.index(config.blend)
         self.zcull = zcull
-        self.plan = plan or RegionPlan(width, height, max(height, 1))
-        self.regions = RegionSamples.of(samples, self.plan) if samples is not None else None
-        self.samples = None
+        rows = (0, height) if rows is None else tuple(rows)
+        self.one_region = rows == (0, height)
         self.image = np.empty((height, width, 4), np.float32)
         self.image[:] = self.clear_color
-        self.keep_depth = keep_depth and self.plan.count > 1
-        self.frame_depth = np.full(width * height * spp, clear_depth, np.float32) if self.keep_depth else None
-        self.region = -1
-        self._open(0)
+        self.frame_depth = (np.full(width * height * spp, clear_depth, np.float32)
+                            if keep_depth and not self.one_region else None)
+        self._open(rows, samples)
 
-    def _open(self, region: int) -> None:
-        """Fresh (cleared) buffers for ``region``."""
-        r0, r1 = self.plan.bounds(region)
+    def _open(self, rows: tuple[int, int], samples) -> None:
+        """Fresh (cleared) buffers for image rows ``rows``, whose samples are ``samples``."""
+        r0, r1 = rows
         n = (r1 - r0) * self.width * self.spp
-        self.region = region
+        self.rows = rows
         self.pix0 = r0 * self.width
         self.depth = np.full(n, self.clear_depth, np.float32)
         self.color = np.empty((n, 4), np.float32)
         self.color[:] = self.clear_color
-        self.samples = self.regions.region(region) if self.regions is not None and self.zcull is not None else None
+        self.samples = samples
 
     def _resolve_region(self) -> None:
         """Box-filter the current region into the image (and keep its depth when asked)."""
-        r0, r1 = self.plan.bounds(self.region)
+        r0, r1 = self.rows
         resolve_kernel(self.color, self.spp, self.image[r0:r1].reshape(-1, 4))
         if self.frame_depth is not None:
             self.frame_depth[self.pix0 * self.spp : r1 * self.width * self.spp] = self.depth
 
+    def open_region(self, rows: tuple[int, int], samples=None) -> None:
+        """Move on to the next screen region, image rows ``rows`` (its ``samples``
+        refresh z-cull's boxes): the current one is resolved into the image and
+        its buffers are dropped for fresh ones."""
+        self._resolve_region()
+        self._open(rows, samples)
+
     def run(self, batch: dict[str, np.ndarray]) -> tuple[tuple | None, np.ndarray, np.ndarray, np.ndarray]:
-        """Depth-test and blend a batch. Returns its z-cull refresh request (for ``refresh_zcull``;
-        None without z-cull), arithmetic, events and traffic (bytes read, written)."""
+        """Depth-test and blend a batch (of samples of the current region). Returns its z-cull refresh
+        request (for ``refresh_zcull``; None without z-cull), arithmetic, events and traffic (bytes read,
+        written)."""
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
         traffic = np.zeros(2, np.int64)
-        if len(batch["pix"]):
-            region = self.plan.region_of_row(int(batch["pix"][0]) // self.width)
-            if region != self.region:  # batches come region by region: this one is done
-                self._resolve_region()
-                self._open(region)
         prior = np.empty(len(batch["pix"]), np.float32)
         rop_kernel(batch["pix"], batch["sidx"], batch["z"], batch["color"], batch["noread"], self.spp, self.pix0,
                    self.func, self.config.depth_write, self.blend, self.depth, self.color, prior, ops, events,
@@ -204,5 +205,5 @@ class Rop:
     def depth_samples(self) -> np.ndarray | None:
         """The frame's per-sample depth, (H, W, spp), after ``resolve``; None
         when the frame spans several regions and ``keep_depth`` was off."""
-        d = self.frame_depth if self.plan.count > 1 else self.depth
+        d = self.depth if self.one_region else self.frame_depth
         return None if d is None else d.reshape(self.height, self.width, self.spp)

@@ -25,8 +25,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from pipeline_sim.counters import COMMON, N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
-from pipeline_sim.regions import RegionSamples, samples_for_row
+from pipeline_sim.definitions import COMMON, N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
 
 EVENTS = ("samples_tested", "samples_covered", "samples_in_range", "pixels_visited",
           "tests_2d", "tests_3d_xyt", "tests_4d_xyuv", "tests_5d")
@@ -1001,9 +1000,9 @@ _NO_TUPLES = np.zeros(0, np.int8)
 class SampleTester:
     """Functional model of the sample tester unit.
 
-    ``samples``: a sample set, or the samples of the screen regions
-    (``RegionSamples``), which the tester takes one region at a time, as its
-    batches reach it; the tile-major copies are those of the current region.
+    ``samples``: the samples of the screen region its batches are in, whole
+    tile rows; the pipeline hands it those of each region as its batches move
+    on (``use_samples``). The tile-major copies are those of the current region.
     """
 
     name = "sample_tester"
@@ -1014,20 +1013,19 @@ class SampleTester:
         self.config = config
         self.specialize = specialize
         self.table = table
-        self.regions = RegionSamples.of(samples)
-        self.samples = samples if samples is not self.regions else None
         self.tile_size = tile_size
         self.backface_culling = backface_culling
+        self.samples = None
         self._layout = None
+        if samples is not None:
+            self.use_samples(samples)
 
-    def use_rows_of(self, tiles: dict[str, np.ndarray]) -> None:
-        """Take the samples of the region of this batch's tiles (all in one region)."""
-        ty = tiles["ty"]
-        s = samples_for_row(self.regions, self.samples, int(ty[0]) * self.tile_size if len(ty) else None)
-        if s is not self.samples:
-            if s.row0 % self.tile_size:
-                raise ValueError(f"a screen region starts at row {s.row0}, not on a tile row")
-            self.samples = s
+    def use_samples(self, samples) -> None:
+        """Test the next batches against ``samples`` (a region's: whole tile rows from image row ``row0``)."""
+        if samples is not self.samples:
+            if samples.row0 % self.tile_size:
+                raise ValueError(f"a screen region starts at row {samples.row0}, not on a tile row")
+            self.samples = samples
             self._layout = None
 
     def layout(self) -> tuple:
@@ -1061,7 +1059,6 @@ class SampleTester:
     def kernel_args(self, tiles: dict[str, np.ndarray], out: dict[str, np.ndarray], ops: np.ndarray,
                     events: np.ndarray) -> tuple:
         """The arguments of ``sample_test_kernel`` for a batch of tile records."""
-        self.use_rows_of(tiles)
         s = self.samples
         t = self.table
         ty = tiles["ty"] - np.int32(s.row0 // self.tile_size) if s.row0 else tiles["ty"]  # rows from row0
@@ -1074,7 +1071,6 @@ class SampleTester:
                 ops, events)
 
     def run(self, tiles: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
-        self.use_rows_of(tiles)
         s = self.samples
         ts = self.tile_size
         n = len(tiles["tri"])

@@ -23,11 +23,10 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from pipeline_sim.counters import COMMON, N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
-from pipeline_sim.regions import RegionSamples, samples_for_row
-from pipeline_sim.shaders import (IN_B, IN_DEPTH, IN_MATERIAL, IN_NX, IN_NY, IN_NZ, IN_OBJECT, IN_PX, IN_R,
-                                  IN_T, IN_T_HI, IN_T_LO, IN_TRIANGLE, IN_U, IN_U_HI, IN_U_LO, IN_V, IN_V_HI,
-                                  IN_V_LO, IN_X, IN_Y, IN_Z_HI, IN_Z_LO, N_INPUTS)
+from pipeline_sim.definitions import (COMMON, IN_B, IN_DEPTH, IN_MATERIAL, IN_NX, IN_NY, IN_NZ, IN_OBJECT, IN_PX, IN_R,
+                                      IN_T, IN_T_HI, IN_T_LO, IN_TRIANGLE, IN_U, IN_U_HI, IN_U_LO, IN_V, IN_V_HI,
+                                      IN_V_LO, IN_X, IN_Y, IN_Z_HI, IN_Z_LO, N_INPUTS, N_OPS, OP_CMP, OP_MADD, OP_MUL,
+                                      OP_RCP)
 
 EVENTS = ("lookups", "hits", "misses", "evictions", "shader_executions")
 EV_LOOKUP, EV_HIT, EV_MISS, EV_EVICT, EV_EXEC = range(len(EVENTS))
@@ -263,9 +262,7 @@ class Shading:
         self.config = config
         self.draw = draw
         self.table = table
-        # a sample set, or the samples of the screen regions, one at a time
-        self.regions = RegionSamples.of(samples) if samples is not None else None
-        self.samples = samples if self.regions is not None and samples is not self.regions else None
+        self.samples = samples  # of the screen region the batches are in (``use_samples``)
         self.shader = shader
         self.params = np.ascontiguousarray(params, dtype=np.float32)
         self.texture = (np.zeros((1, 1, 4), np.float32) if texture is None
@@ -282,6 +279,10 @@ class Shading:
         self.grid_w = int(np.ceil(draw.width / config.shading_rate))
         self.grid_h = int(np.ceil(draw.height / config.shading_rate))
 
+    def use_samples(self, samples) -> None:
+        """Shade the next batches with ``samples`` (their screen region's; conservative mode reads none)."""
+        self.samples = samples
+
     def _shade(self, inputs: np.ndarray) -> np.ndarray:
         out = np.zeros((inputs.shape[1], 4), np.float32)
         if inputs.shape[1]:
@@ -294,8 +295,6 @@ class Shading:
         if self.conservative:
             return self._run_conservative(batch, ops, events)
         n = len(batch["tri"])
-        row = int(batch["pix"][0]) // self.draw.width if n else None
-        self.samples = samples_for_row(self.regions, self.samples, row)
         s = self.samples
         color = np.zeros((n, 4), np.float32)
         if self.cached:

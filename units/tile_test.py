@@ -29,7 +29,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from pipeline_sim.counters import N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+from pipeline_sim.definitions import N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
 from units.rounding import F32_REL, MARGIN_PX
 from units.tile_test_dual import dual_time_interval, two_stage_lines
 from units.tile_test_hull import hull_overlaps_tile

@@ -40,7 +40,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from pipeline_sim.counters import OP_ADD, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+from pipeline_sim.definitions import OP_ADD, OP_CMP, OP_MADD, OP_MUL, OP_RCP
 from units.rounding import F32_REL
 
 T_PAD_ABS = 1e-6  # absolute time pad of the stage-2 lines

@@ -45,7 +45,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from pipeline_sim.counters import OP_ADD, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+from pipeline_sim.definitions import OP_ADD, OP_CMP, OP_MADD, OP_MUL, OP_RCP
 
 HULL_MAX = 6  # six points have at most six hull vertices
 # "no overlap" is reported only when the separation exceeds this fraction of

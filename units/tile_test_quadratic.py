@@ -43,7 +43,7 @@ import math
 import numba as nb
 import numpy as np
 
-from pipeline_sim.counters import OP_ADD, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+from pipeline_sim.definitions import OP_ADD, OP_CMP, OP_MADD, OP_MUL, OP_RCP
 from units.rounding import F32_REL  # tile_test imports this module: no cycle
 
 _EPS = 2.220446049250313e-16  # float64 unit roundoff (2^-52)

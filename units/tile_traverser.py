@@ -13,7 +13,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from pipeline_sim.counters import N_OPS
+from pipeline_sim.definitions import N_OPS
 from units.tile_test import MARGIN_PX, box_time_interval
 
 EVENTS = ("coarse_tiles_tested", "coarse_tiles_rejected", "tiles_emitted")

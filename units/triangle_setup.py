@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from pipeline_sim.counters import N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+from pipeline_sim.definitions import N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
 from units.rounding import F32_REL
 from units.tile_test_hull import hull_setup
 

@@ -20,7 +20,7 @@ import weakref
 import numba as nb
 import numpy as np
 
-from pipeline_sim.counters import N_OPS, OP_CMP, OP_MUL
+from pipeline_sim.definitions import N_OPS, OP_CMP, OP_MUL
 
 EVENTS = ("tiles_culled", "tiles_no_depth_read", "box_lookups")
 EV_CULLED, EV_NOREAD, EV_LOOKUPS = range(len(EVENTS))
