@@ -423,5 +423,11 @@ def _read_toml(path: Path) -> dict[str, Any]:
             return tomllib.load(fh)
     except FileNotFoundError:
         raise UserError(f"{path}: architecture file not found") from None
+    except UnicodeDecodeError as exc:
+        raise UserError(f"{path.name}: not a TOML file: not UTF-8 text at byte {exc.start}") from None
+    except IsADirectoryError:
+        raise UserError(f"{path}: is a folder, not an architecture file") from None
+    except OSError as exc:
+        raise UserError(f"{path}: cannot read the architecture file: {exc.strerror}") from None
     except tomllib.TOMLDecodeError as exc:
         raise UserError(f"{path.name}: malformed TOML: {exc}") from None

@@ -243,6 +243,12 @@ def test_arch_file_errors_name_the_file(tmp_path):
         load_arch(broken)
     with pytest.raises(UserError, match="not found"):
         load_arch(tmp_path / "missing.toml")
+    garbage = tmp_path / "garbage.toml"
+    garbage.write_bytes(b"\xff\xfe\x00 not text")
+    with pytest.raises(UserError, match="garbage.toml: not a TOML file: not UTF-8"):
+        load_arch(garbage)
+    with pytest.raises(UserError, match="is a folder"):
+        load_arch(tmp_path)
 
 
 def test_replace_keeps_sections():
