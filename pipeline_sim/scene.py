@@ -117,6 +117,8 @@ the file, malformed JSON, an OFF line that is not a vertex or a face).
 
 from __future__ import annotations
 
+import base64
+import binascii
 import contextlib
 import dataclasses
 import hashlib
@@ -130,6 +132,7 @@ from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+from urllib.parse import unquote
 
 import numpy as np
 
@@ -848,10 +851,72 @@ def _ply_problem(data: bytes) -> str | None:
     if end < 0:
         return "no 'end_header' line"
     problem = _utf8_problem(data[:end])
-    return None if problem is None else f"the header is {problem}"
+    if problem is not None:
+        return f"the header is {problem}"
+    header = [line.split() for line in data[:end].decode("utf-8").splitlines()]
+    if not any(words[:2] == ["format", "ascii"] for words in header):
+        return None  # a binary body: trimesh checks its length against the counts
+    elements: list[tuple[str, int]] = []
+    for words in header:
+        if words[:1] == ["element"]:
+            if len(words) != 3 or not words[2].isdigit():
+                return f"header line 'element {' '.join(words[1:])}': expected a name and a count"
+            elements.append((words[1], int(words[2])))
+    body_start = data.find(b"\n", end)
+    body = data[body_start + 1:] if body_start >= 0 else b""
+    problem = _utf8_problem(body)
+    if problem is not None:
+        return f"the ASCII body is {problem}"
+    rows = sum(1 for line in body.decode("utf-8").splitlines() if line.strip())
+    need = sum(n for _, n in elements)
+    if rows < need:
+        counts = ", ".join(f"{n} {name}" for name, n in elements)
+        return f"its header gives {counts} elements, {need} lines, but the body has {rows}"
+    return None
 
 
-def _glb_problem(data: bytes) -> str | None:
+def _obj_problem(data: bytes) -> str | None:
+    """Text, and face indices that name an existing vertex (1-based; a negative
+    index counts back from the last vertex read so far; 0 is no index)."""
+    problem = _utf8_problem(data)
+    if problem is not None:
+        return problem
+    lines = data.decode("utf-8").splitlines()
+    kinds = ("v", "vt", "vn")
+    total = {k: 0 for k in kinds}
+    for line in lines:
+        words = line.split(None, 1)
+        if words and words[0] in total:
+            total[words[0]] += 1
+    seen = {k: 0 for k in kinds}
+    for n, line in enumerate(lines, 1):
+        words = line.split("#", 1)[0].split()
+        if not words:
+            continue
+        if words[0] in seen:
+            seen[words[0]] += 1
+            continue
+        if words[0] != "f":
+            continue
+        for word in words[1:]:
+            for kind, part in zip(kinds, word.split("/")):
+                if not part:
+                    continue
+                try:
+                    i = int(part)
+                except ValueError:
+                    return f"line {n}: face vertex '{_printable(word)}' is not of the form i, i/t, i//n or i/t/n"
+                if i == 0:
+                    return f"line {n}: face vertex '{word}' uses index 0 (OBJ indices start at 1)"
+                if i < 0 and -i > seen[kind]:
+                    return (f"line {n}: face vertex '{word}' counts back {-i} from the {seen[kind]} "
+                            f"'{kind}' lines before it")
+                if i > total[kind]:
+                    return f"line {n}: face vertex '{word}' names '{kind}' {i}, but the file has {total[kind]}"
+    return None
+
+
+def _glb_problem(data: bytes, folder: Path) -> str | None:
     if len(data) < 12 or data[:4] != b"glTF":
         return "does not start with the 12-byte GLB header (magic 'glTF')"
     version = int.from_bytes(data[4:8], "little")
@@ -863,11 +928,160 @@ def _glb_problem(data: bytes) -> str | None:
     chunk = int.from_bytes(data[12:16], "little")
     if data[16:20] != b"JSON" or 20 + chunk > len(data):
         return "the header is not followed by a whole JSON chunk"
-    problem = _gltf_problem(data[20 : 20 + chunk])
+    rest = 20 + chunk
+    binary = None
+    if rest < len(data):
+        size = int.from_bytes(data[rest:rest + 4], "little")
+        if len(data) < rest + 8 or data[rest + 4:rest + 8] != b"BIN\0" or rest + 8 + size > len(data):
+            return f"the JSON chunk is followed by {len(data) - rest} bytes that are not a whole BIN chunk"
+        binary = data[rest + 8:rest + 8 + size]
+    problem = _gltf_problem(data[20:rest], folder, binary, glb=True)
     return None if problem is None else f"its JSON chunk: {problem}"
 
 
-def _gltf_problem(data: bytes) -> str | None:
+# glTF accessors: bytes a component, components an element
+_GLTF_COMPONENT_BYTES = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
+_GLTF_TYPE_COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+
+
+class _GltfError(Exception):
+    """What is wrong in a glTF document, in its own terms."""
+
+
+def _gltf_index(value: Any, what: str, table: list, target: str) -> int:
+    """``value`` as an index into the document's ``target`` array."""
+    if type(value) is not int or not 0 <= value < len(table):
+        raise _GltfError(f"{what} is {_gltf_shown(value)}, not an index into {target} (which has {len(table)})")
+    return value
+
+
+def _gltf_shown(value: Any) -> str:
+    text = json.dumps(value)
+    return text if len(text) <= 40 else text[:40] + "..."
+
+
+def _gltf_count(item: dict, key: str, what: str, default: int | None = None) -> int:
+    """``item[key]`` as a non-negative integer (``default`` if absent and allowed)."""
+    value = item.get(key, default)
+    if type(value) is not int or value < 0:
+        raise _GltfError(f"{what} {key} is {_gltf_shown(value) if key in item else 'missing'}, "
+                         "expected a non-negative integer")
+    return value
+
+
+def _gltf_buffer_length(i: int, buffer: dict, folder: Path, binary: bytes | None, glb: bool) -> int:
+    """The bytes of buffer ``i`` that exist: a data URI's decoded length, an
+    external file's size or (buffer 0 of a GLB without a URI) the BIN chunk's."""
+    uri = buffer.get("uri")
+    if uri is None:
+        if not (glb and i == 0):
+            raise _GltfError(f"buffer {i} has no uri")
+        if binary is None:
+            raise _GltfError("buffer 0 refers to the BIN chunk, but the file has none")
+        return len(binary)
+    if not isinstance(uri, str):
+        raise _GltfError(f"buffer {i} uri is {_gltf_shown(uri)}, not a string")
+    if uri.startswith("data:"):
+        head, comma, payload = uri.partition(",")
+        if not comma or not head.endswith(";base64"):
+            raise _GltfError(f"buffer {i} data URI is not base64 ('data:...;base64,...')")
+        try:
+            return len(base64.b64decode(payload, validate=True))
+        except binascii.Error as e:
+            raise _GltfError(f"buffer {i} data URI is not valid base64 ({e})") from None
+    path = folder / unquote(uri)
+    if not path.is_file():
+        raise _GltfError(f"buffer {i} file '{uri}' not found (resolved to '{path}')")
+    return path.stat().st_size
+
+
+def _gltf_structure(doc: dict, folder: Path, binary: bytes | None, glb: bool) -> None:
+    """Check what the mesh loader reads of a glTF document: the types of the
+    top-level members, each index between them and each byte range."""
+    if not isinstance(doc.get("asset"), dict):
+        raise _GltfError(f"'asset' is {_gltf_shown(doc.get('asset'))}, not an object")
+    arrays = {}
+    for name in ("scenes", "nodes", "meshes", "accessors", "bufferViews", "buffers", "materials", "textures",
+                 "images", "samplers"):
+        value = doc.get(name, [])
+        if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
+            raise _GltfError(f"'{name}' is not an array of objects")
+        arrays[name] = value
+    if "scene" in doc:
+        _gltf_index(doc["scene"], "'scene'", arrays["scenes"], "scenes")
+    for i, scene in enumerate(arrays["scenes"]):
+        nodes = scene.get("nodes", [])
+        if not isinstance(nodes, list):
+            raise _GltfError(f"scene {i} nodes is not an array")
+        for n in nodes:
+            _gltf_index(n, f"a node of scene {i}", arrays["nodes"], "nodes")
+    for i, node in enumerate(arrays["nodes"]):
+        children = node.get("children", [])
+        if not isinstance(children, list):
+            raise _GltfError(f"node {i} children is not an array")
+        for n in children:
+            _gltf_index(n, f"a child of node {i}", arrays["nodes"], "nodes")
+        if "mesh" in node:
+            _gltf_index(node["mesh"], f"node {i} mesh", arrays["meshes"], "meshes")
+        for key, size in (("matrix", 16), ("translation", 3), ("rotation", 4), ("scale", 3)):
+            value = node.get(key, [0.0] * size)
+            if (not isinstance(value, list) or len(value) != size
+                    or not all(type(x) in (int, float) for x in value)):
+                raise _GltfError(f"node {i} {key} is {_gltf_shown(value)}, not {size} numbers")
+    accessors = set()
+    for i, mesh in enumerate(arrays["meshes"]):
+        primitives = mesh.get("primitives")
+        if not isinstance(primitives, list) or not all(isinstance(p, dict) for p in primitives):
+            raise _GltfError(f"mesh {i} primitives is not an array of objects")
+        for j, prim in enumerate(primitives):
+            what = f"mesh {i} primitive {j}"
+            attributes = prim.get("attributes")
+            if not isinstance(attributes, dict):
+                raise _GltfError(f"{what} attributes is not an object")
+            for name, a in attributes.items():
+                accessors.add(_gltf_index(a, f"{what} attribute {name}", arrays["accessors"], "accessors"))
+            if "indices" in prim:
+                accessors.add(_gltf_index(prim["indices"], f"{what} indices", arrays["accessors"], "accessors"))
+            if "material" in prim:
+                _gltf_index(prim["material"], f"{what} material", arrays["materials"], "materials")
+            if type(prim.get("mode", 4)) is not int:
+                raise _GltfError(f"{what} mode is {_gltf_shown(prim['mode'])}, not an integer")
+    lengths = [_gltf_buffer_length(i, b, folder, binary, glb) for i, b in enumerate(arrays["buffers"])]
+    views = []
+    for i, view in enumerate(arrays["bufferViews"]):
+        b = _gltf_index(view.get("buffer"), f"bufferView {i} buffer", arrays["buffers"], "buffers")
+        start = _gltf_count(view, "byteOffset", f"bufferView {i}", 0)
+        length = _gltf_count(view, "byteLength", f"bufferView {i}")
+        declared = _gltf_count(arrays["buffers"][b], "byteLength", f"buffer {b}")
+        if declared > lengths[b]:
+            raise _GltfError(f"buffer {b} byteLength is {declared}, but its data has {lengths[b]} bytes")
+        if start + length > declared:
+            raise _GltfError(f"bufferView {i} spans bytes {start}-{start + length} of buffer {b}, which has {declared}")
+        stride = view.get("byteStride")
+        if stride is not None and (type(stride) is not int or stride <= 0):
+            raise _GltfError(f"bufferView {i} byteStride is {_gltf_shown(stride)}, expected a positive integer")
+        views.append((length, stride))
+    for i in sorted(accessors):
+        a = arrays["accessors"][i]
+        count = _gltf_count(a, "count", f"accessor {i}")
+        if a.get("componentType") not in _GLTF_COMPONENT_BYTES or isinstance(a.get("componentType"), bool):
+            raise _GltfError(f"accessor {i} componentType is {_gltf_shown(a.get('componentType'))}, "
+                             f"expected one of {sorted(_GLTF_COMPONENT_BYTES)}")
+        if a.get("type") not in _GLTF_TYPE_COMPONENTS:
+            raise _GltfError(f"accessor {i} type is {_gltf_shown(a.get('type'))}, "
+                             f"expected one of {', '.join(_GLTF_TYPE_COMPONENTS)}")
+        if "bufferView" not in a:
+            continue  # zeros (or sparse values)
+        v = _gltf_index(a["bufferView"], f"accessor {i} bufferView", arrays["bufferViews"], "bufferViews")
+        start = _gltf_count(a, "byteOffset", f"accessor {i}", 0)
+        element = _GLTF_COMPONENT_BYTES[a["componentType"]] * _GLTF_TYPE_COMPONENTS[a["type"]]
+        length, stride = views[v]
+        end = start + ((count - 1) * (stride or element) + element if count else 0)
+        if end > length:
+            raise _GltfError(f"accessor {i} reads bytes {start}-{end} of bufferView {v}, which has {length}")
+
+
+def _gltf_problem(data: bytes, folder: Path, binary: bytes | None = None, glb: bool = False) -> str | None:
     problem = _utf8_problem(data)
     if problem is not None:
         return problem
@@ -877,6 +1091,10 @@ def _gltf_problem(data: bytes) -> str | None:
         return f"not JSON (line {e.lineno}, column {e.colno}: {e.msg})"
     if not isinstance(doc, dict) or "asset" not in doc:
         return "the JSON is not a glTF document (no 'asset' object)"
+    try:
+        _gltf_structure(doc, folder, binary, glb)
+    except _GltfError as e:
+        return str(e)
     return None
 
 
@@ -926,8 +1144,10 @@ def _off_problem(data: bytes) -> str | None:
 # a format's own check of a file's bytes, before trimesh parses it: trimesh
 # decodes text it cannot read as UTF-8 with an optional dependency (not
 # installed), and its errors on garbage rarely say what is wrong
-_FORMAT_PROBLEM: dict[str, Callable[[bytes], str | None]] = {
-    ".obj": _utf8_problem, ".off": _off_problem, ".stl": _stl_problem, ".ply": _ply_problem,
+# (given the file's bytes and its folder, where a .gltf's buffers are)
+_FORMAT_PROBLEM: dict[str, Callable[[bytes, Path], str | None]] = {
+    ".obj": lambda data, folder: _obj_problem(data), ".off": lambda data, folder: _off_problem(data),
+    ".stl": lambda data, folder: _stl_problem(data), ".ply": lambda data, folder: _ply_problem(data),
     ".glb": _glb_problem, ".gltf": _gltf_problem,
 }
 
@@ -978,7 +1198,7 @@ def _load_mesh_file(r: _Reader, key: str, written: str, resolved: Path) -> _Load
     except OSError as e:
         raise r.error(key, f"cannot read mesh file {shown}: {e.strerror or e}") from None
     invalid = f"not a valid {_FORMAT_NAMES[suffix]} file {shown}"
-    problem = _FORMAT_PROBLEM[suffix](raw)
+    problem = _FORMAT_PROBLEM[suffix](raw, resolved.parent)
     if problem is not None:
         raise r.error(key, f"{invalid}: {_printable(problem)}")
     try:

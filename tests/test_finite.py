@@ -16,6 +16,8 @@ import sys
 import numpy as np
 import pytest
 
+import units.rop
+
 from pipeline_sim.config import apply_overrides, load_arch
 from pipeline_sim.draw import build_draw
 from pipeline_sim.errors import UserError
@@ -89,12 +91,21 @@ TINY_CLIP = {
     "objects": TINY_WORLD["objects"],
 }
 
-SCENES = {"radiance": RADIANCE, "huge_world": HUGE_WORLD, "huge_clip": HUGE_CLIP, "tiny_world": TINY_WORLD,
+# a point light 1e-6 in front of a face along its normal: n.l = 1 and the
+# attenuation at its largest, 1e12, over the whole face the camera sees
+GRAZING_LIGHT = {
+    "image": {"width": 24, "height": 24, "spp": 4, "seed": 5},
+    "camera": {"eye": [0.0, 0.0, 1.0], "look_at": [0.0, 0.0, 0.0], "fov_y": 1e-4, "near": 0.5, "far": 2.0},
+    "light": {"type": "point", "position": [0.0, 0.0, 1e-6], "color": [R, R, R], "intensity": R, "ambient": R},
+    "objects": [{"primitive": "plane", "size": [1.0, 1.0], "color": [R, R, R], "open": {"rotate": [90.0, 0.0, 0.0]}}],
+}
+
+SCENES = {"radiance": RADIANCE, "light_on_face": GRAZING_LIGHT, "huge_world": HUGE_WORLD, "huge_clip": HUGE_CLIP, "tiny_world": TINY_WORLD,
           "tiny_clip": TINY_CLIP}
 # where the clip coordinates are themselves extreme, triangle setup's float32
 # products leave the pipeline's working range: those frames must stay finite,
 # but they need not show the sphere
-SHOWN = ("radiance", "huge_world", "tiny_world")
+SHOWN = ("radiance", "light_on_face", "huge_world", "tiny_world")
 
 ARCHS = {
     "default": [],
@@ -111,9 +122,25 @@ def assert_finite(name: str, values) -> None:
     assert bad == 0, f"{name}: {bad} non-finite values"
 
 
+@pytest.fixture
+def rop_batches(monkeypatch):
+    """The number of non-finite colour and depth values of every batch entering
+    the ROP: its saturating blend and depth test would hide them in the image."""
+    bad = {"color": 0, "z": 0}
+    run = units.rop.Rop.run
+
+    def checked(self, batch):
+        for key in bad:
+            bad[key] += int(np.size(batch[key]) - np.count_nonzero(np.isfinite(batch[key])))
+        return run(self, batch)
+
+    monkeypatch.setattr(units.rop.Rop, "run", checked)
+    return bad
+
+
 @pytest.mark.parametrize("arch_name", sorted(ARCHS))
 @pytest.mark.parametrize("scene_name", sorted(SCENES))
-def test_extreme_accepted_scenes_leave_every_buffer_finite(scene_name, arch_name):
+def test_extreme_accepted_scenes_leave_every_buffer_finite(scene_name, arch_name, rop_batches):
     data = SCENES[scene_name]
     scene = parse_scene(copy.deepcopy(data))  # accepted: every value is within its bound
     arch = apply_overrides(load_arch(), ARCHS[arch_name]) if ARCHS[arch_name] else load_arch()
@@ -121,6 +148,7 @@ def test_extreme_accepted_scenes_leave_every_buffer_finite(scene_name, arch_name
     for field in ("q", "r", "lens_x", "lens_y", "pos", "nrm", "color"):
         assert_finite(f"draw.{field} as float32", getattr(draw, field).astype(np.float32))
     res = render_scene(scene, arch, keep_depth=True)
+    assert rop_batches == {"color": 0, "z": 0}, f"non-finite values entering the ROP: {rop_batches}"
     assert_finite("image", res.image)
     if res.depth is not None:
         assert_finite("per-sample depth", res.depth)
