@@ -204,14 +204,13 @@ def test_real_kill_then_resume(tmp_path):
 
 
 def test_failing_point_is_recorded_and_the_others_finish(tmp_path):
-    # A shading cache of 2^62 entries is a valid setting (a power of two, a multiple of the
-    # ways) that no machine can allocate. Loading the sweep refuses it (its memory estimate),
-    # so it is put into the points after loading, as a stale or hand-made spec would have it:
+    # A shading cache of 2^62 entries is outside the setting's range. Loading the sweep refuses
+    # it, so it is put into the points after loading, as a stale or hand-made spec would have it:
     # those points fail only when they run.
     huge = 4611686018427387904
     sweep = _folder(tmp_path, TINY.replace('"tile_traverser.tile_size" = [8, 16]', "")
                     + '[[zip]]\n"shading.cache_entries" = [1024, 2048]\n"shading.cache_ways" = [8, 1]\n')
-    with pytest.raises(UserError, match="of memory"):
+    with pytest.raises(UserError, match="cache_entries: must be from 1 to"):
         load_sweep(_folder(tmp_path / "refused", sweep.read_text().replace("2048", str(huge))))
     spec = load_sweep(sweep)
     spec.points = [{**p, "shading.cache_entries": huge} if p["shading.cache_entries"] == 2048 else p
@@ -224,7 +223,7 @@ def test_failing_point_is_recorded_and_the_others_finish(tmp_path):
     good = points[points["shading.cache_entries"] == 1024]
     assert (bad.status == "error").all() and (good.status == "ok").all()
     assert all(msg and "\n" not in msg for msg in bad.error)
-    assert all("too big" in msg for msg in bad.error)
+    assert all("cache_entries: must be from 1 to" in msg for msg in bad.error)
     for pid in bad.point_id:
         rec = json.loads((tmp_path / "out" / "records" / f"{pid}.json").read_text())
         assert "Traceback" in rec["traceback"]
