@@ -1009,18 +1009,15 @@ def _gltf_structure(doc: dict, folder: Path, binary: bytes | None, glb: bool) ->
         arrays[name] = value
     if "scene" in doc:
         _gltf_index(doc["scene"], "'scene'", arrays["scenes"], "scenes")
-    for i, scene in enumerate(arrays["scenes"]):
-        nodes = scene.get("nodes", [])
-        if not isinstance(nodes, list):
-            raise _GltfError(f"scene {i} nodes is not an array")
-        for n in nodes:
-            _gltf_index(n, f"a node of scene {i}", arrays["nodes"], "nodes")
+    node_lists = [(f"scene {i}", "nodes", "a node of", s) for i, s in enumerate(arrays["scenes"])]
+    node_lists += [(f"node {i}", "children", "a child of", n) for i, n in enumerate(arrays["nodes"])]
+    for owner, key, role, obj in node_lists:
+        refs = obj.get(key, [])
+        if not isinstance(refs, list):
+            raise _GltfError(f"{owner} {key} is not an array")
+        for n in refs:
+            _gltf_index(n, f"{role} {owner}", arrays["nodes"], "nodes")
     for i, node in enumerate(arrays["nodes"]):
-        children = node.get("children", [])
-        if not isinstance(children, list):
-            raise _GltfError(f"node {i} children is not an array")
-        for n in children:
-            _gltf_index(n, f"a child of node {i}", arrays["nodes"], "nodes")
         if "mesh" in node:
             _gltf_index(node["mesh"], f"node {i} mesh", arrays["meshes"], "meshes")
         for key, size in (("matrix", 16), ("translation", 3), ("rotation", 4), ("scale", 3)):
