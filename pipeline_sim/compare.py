@@ -272,7 +272,7 @@ def format_table(table: pd.DataFrame) -> str:
     show = table.copy()
     show["ste"] = show.ste.map(lambda v: percent(v, 2))
     for col in ("ste_vs_baseline", "samples_tested_vs_baseline"):
-        show[col] = show[col].map("{:.2f}x".format)
+        show[col] = show[col].map(lambda v: "n/a" if v is None or v != v else f"{v:.2f}x")
     show["wall_time_s"] = show.wall_time_s.map("{:.2f}".format)
     cols = ["algorithm", "tiles_tested", "tiles_rejected", "samples_tested", "samples_covered", "ste",
             "ste_vs_baseline", "ops_triangle_setup", "ops_tile_test", "ops_sample_test", "ops_interpolation_setup",

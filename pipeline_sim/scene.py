@@ -1665,6 +1665,8 @@ def load_scene(path: str | Path) -> Scene:
     p = Path(path)
     where = str(path)
     try:
+        if p.exists() and not p.is_dir() and not p.is_file():   # a FIFO or a device would block or never end
+            raise UserError(f"{where}: not a regular file, expected a TOML scene file")
         source = p.read_bytes()
     except FileNotFoundError:
         raise UserError(f"{where}: scene file not found (resolved to '{p.resolve()}')") from None

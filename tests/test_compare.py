@@ -105,3 +105,15 @@ def test_every_comparison_workload_gives_identical_images(root, name):
     scene = scene.replace(image=dataclasses.replace(scene.image, width=64, height=36, spp=4))
     comp = compare(scene, load_arch(), [n for n in ALGORITHMS if n != "exact/pixel"])
     assert comp.identical, f"{name}: {comp.differing} differ"
+
+
+def test_the_printed_table_says_n_a_for_a_ratio_over_nothing():
+    """A scene with nothing tested has no STE and so no ratio to the baseline: 'n/a', not 'nan%' or 'nanx'."""
+    from pipeline_sim.compare import format_table
+
+    row = {"algorithm": "bbox", "tiles_tested": 0, "tiles_rejected": 0, "samples_tested": 0, "samples_covered": 0,
+           "ste": float("nan"), "ste_vs_baseline": float("nan"), "samples_tested_vs_baseline": 0.0,
+           "ops_triangle_setup": 0, "ops_tile_test": 0, "ops_sample_test": 0, "ops_interpolation_setup": 0,
+           "depth_bytes": 0, "shader_executions": 0, "frame_cycles": 10.0, "wall_time_s": 0.1}
+    text = format_table(pd.DataFrame([row]))
+    assert "nan" not in text and text.count("n/a") == 2

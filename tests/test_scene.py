@@ -906,3 +906,12 @@ def test_a_number_beyond_any_float_and_a_subnormal_light_direction(tmp_path):
     path.write_text(scene_toml(moving_sphere()) + "[light]\ndirection = [1e-320, -1e-320, 0.0]\n")
     direction = load_scene(path).light.direction
     np.testing.assert_allclose(direction, [2**-0.5, -(2**-0.5), 0.0], rtol=1e-12)
+
+
+def test_a_scene_path_that_is_a_fifo_is_refused_not_read_forever(tmp_path):
+    import os
+
+    fifo = tmp_path / "scene.toml"
+    os.mkfifo(fifo)
+    with pytest.raises(UserError, match="not a regular file"):
+        load_scene(fifo)   # reading a FIFO with no writer would block
