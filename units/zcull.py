@@ -117,9 +117,10 @@ def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st,
     ``REFRESH_WORK``."""
     n = pix.shape[0]
     nbox = zmax.shape[1]
-    touched = np.empty(n, np.int64)
+    rows = min(n, zmax.shape[0])  # at most one row per tile the samples can touch
+    touched = np.empty(rows, np.int64)
     # per touched tile, the boxes to rescan: all of a tile's first refresh, else those a write may have lowered
-    stale = np.empty((n, nbox), np.bool_)  # rows filled as tiles are first touched
+    stale = np.empty((rows, nbox), np.bool_)  # rows filled as tiles are first touched
     n_touched = 0
     checks = 0
     last_pix = -1
