@@ -359,9 +359,12 @@ def run_passes(passes: list[RenderPass], progress=None) -> dict[str, PassResult]
 
 
 def scene_pass(scene, arch: ArchConfig, **overrides) -> RenderPass:
-    """The standard single pass of a scene: its draw, light and background."""
+    """The standard single pass of a scene: its draw (built here unless ``draw`` is given), light and
+    background."""
     bg = tuple(float(c) for c in scene.background) + (1.0,)
-    kw: dict[str, Any] = dict(draw=build_draw(scene), arch=arch, spp=scene.image.spp, seed=scene.image.seed,
+    if overrides.get("draw") is None:
+        overrides["draw"] = build_draw(scene)
+    kw: dict[str, Any] = dict(arch=arch, spp=scene.image.spp, seed=scene.image.seed,
                               params=standard_params(scene.light), clear_color=bg)
     kw.update(overrides)
     return RenderPass(**kw)
