@@ -132,7 +132,6 @@ from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
-from urllib.parse import unquote
 
 import numpy as np
 
@@ -859,7 +858,7 @@ def _ply_problem(data: bytes) -> str | None:
     elements: list[tuple[str, int]] = []
     for words in header:
         if words[:1] == ["element"]:
-            if len(words) != 3 or not words[2].isdigit():
+            if len(words) != 3 or not (words[2].isascii() and words[2].isdigit()):   # int() takes no '³'
                 return f"header line 'element {' '.join(words[1:])}': expected a name and a count"
             elements.append((words[1], int(words[2])))
     body_start = data.find(b"\n", end)
@@ -989,7 +988,7 @@ def _gltf_buffer_length(i: int, buffer: dict, folder: Path, binary: bytes | None
             return len(base64.b64decode(payload, validate=True))
         except binascii.Error as e:
             raise _GltfError(f"buffer {i} data URI is not valid base64 ({e})") from None
-    path = folder / unquote(uri)
+    path = folder / uri   # as written, as the mesh loader and the scene digest take it
     if not path.is_file():
         raise _GltfError(f"buffer {i} file '{uri}' not found (resolved to '{path}')")
     return path.stat().st_size

@@ -185,3 +185,14 @@ def test_structural_fixtures_are_broken_only_where_meant(tmp_path):
     assert check(tmp_path, ".gltf", json.dumps(gltf()).encode())[0] == 0
     assert check(tmp_path, ".glb", glb(GLB_DOC, TRIANGLE))[0] == 0
     assert check(tmp_path, ".ply", PLY_HEADER + b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")[0] == 0
+
+
+def test_a_non_ascii_digit_count_and_an_external_buffer_named_with_a_percent(tmp_path):
+    """'³' passes str.isdigit but not int(): one line, not a traceback. A buffer URI is a file name as
+    written ('my%20buf.bin'), as the mesh loader reads it: such a file loads."""
+    code, err = check(tmp_path, ".ply", PLY_HEADER.replace(b"element vertex 3", b"element vertex \xc2\xb3")
+                      + b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    assert_reported(code, err, ".ply")
+    (tmp_path / "my%20buf.bin").write_bytes(TRIANGLE)
+    doc = gltf(buffers=[{"byteLength": 36, "uri": "my%20buf.bin"}])
+    assert check(tmp_path, ".gltf", json.dumps(doc).encode())[0] == 0
