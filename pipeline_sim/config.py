@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from pipeline_sim.definitions import BLEND_MODES, DEPTH_FUNCS
-from pipeline_sim.errors import UserError, did_you_mean, unknown_key_error
+from pipeline_sim.errors import UserError, did_you_mean, read_input_text, unknown_key_error
 from pipeline_sim.sampling import PATTERNS
 
 DEFAULT_ARCH_PATH = Path(__file__).with_name("data") / "default_arch.toml"
@@ -418,16 +418,8 @@ def apply_overrides(arch: ArchConfig, overrides: list[str]) -> ArchConfig:
 
 
 def _read_toml(path: Path) -> dict[str, Any]:
+    _, text = read_input_text(path, path.name, "architecture")
     try:
-        with open(path, "rb") as fh:
-            return tomllib.load(fh)
-    except FileNotFoundError:
-        raise UserError(f"{path}: architecture file not found") from None
-    except UnicodeDecodeError as exc:
-        raise UserError(f"{path.name}: not a TOML file: not UTF-8 text at byte {exc.start}") from None
-    except IsADirectoryError:
-        raise UserError(f"{path}: is a folder, not an architecture file") from None
-    except OSError as exc:
-        raise UserError(f"{path}: cannot read the architecture file: {exc.strerror}") from None
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise UserError(f"{path.name}: malformed TOML: {exc}") from None

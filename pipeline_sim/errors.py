@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import difflib
 from collections.abc import Iterable
+from pathlib import Path
 
 
 class UserError(Exception):
@@ -32,3 +33,23 @@ def unknown_key_error(where: str, key: str, choices: Iterable[str]) -> UserError
         f"{where}: unknown key '{key}'{did_you_mean(key, choices)}; "
         f"known keys: {', '.join(choices)}"
     )
+
+
+def read_input_text(path: Path, where: str, what: str) -> tuple[bytes, str]:
+    """The bytes and UTF-8 text of the input file ``path`` (a ``what`` file: scene, sweep,
+    architecture), or a one-line :class:`UserError` naming ``where``: not found, a folder, not a
+    regular file (a FIFO or device would block or never end), unreadable, or not UTF-8."""
+    try:
+        if path.exists() and not path.is_dir() and not path.is_file():
+            raise UserError(f"{where}: not a regular file, expected a TOML {what} file")
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise UserError(f"{where}: {what} file not found (resolved to '{path.resolve()}')") from None
+    except IsADirectoryError:
+        raise UserError(f"{where}: is a folder, expected a TOML {what} file") from None
+    except OSError as exc:
+        raise UserError(f"{where}: cannot read the {what} file: {exc.strerror or exc}") from None
+    try:
+        return data, data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise UserError(f"{where}: not a TOML file: not UTF-8 text at byte {exc.start}") from None

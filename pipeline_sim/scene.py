@@ -135,7 +135,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import UserError, did_you_mean, unknown_key_error
+from .errors import UserError, did_you_mean, read_input_text, unknown_key_error
 
 __all__ = [
     "ImageSettings",
@@ -1663,20 +1663,7 @@ def load_scene(path: str | Path) -> Scene:
     """
     p = Path(path)
     where = str(path)
-    try:
-        if p.exists() and not p.is_dir() and not p.is_file():   # a FIFO or a device would block or never end
-            raise UserError(f"{where}: not a regular file, expected a TOML scene file")
-        source = p.read_bytes()
-    except FileNotFoundError:
-        raise UserError(f"{where}: scene file not found (resolved to '{p.resolve()}')") from None
-    except IsADirectoryError:
-        raise UserError(f"{where}: is a directory, expected a TOML scene file") from None
-    except OSError as e:
-        raise UserError(f"{where}: cannot read scene file: {e.strerror or e}") from None
-    try:
-        text = source.decode("utf-8")
-    except UnicodeDecodeError as e:
-        raise UserError(f"{where}: not valid UTF-8 text (byte {e.start})") from None
+    source, text = read_input_text(p, where, "scene")
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:

@@ -83,7 +83,7 @@ import numpy as np
 import pandas as pd
 import tomli_w
 
-from pipeline_sim.errors import UserError, did_you_mean, unknown_key_error
+from pipeline_sim.errors import UserError, did_you_mean, read_input_text, unknown_key_error
 from pipeline_sim.output import atomic_write_text
 from pipeline_sim.output_folder import OutputFolder, check_writable_folder, clean_leftovers
 
@@ -211,16 +211,7 @@ def _check_setting_path(where: str, key: str) -> None:
 
 
 def _read_sweep_toml(path: Path, where: str) -> dict[str, Any]:
-    try:
-        text = path.read_bytes().decode("utf-8")
-    except FileNotFoundError:
-        raise UserError(f"{where}: sweep file not found (resolved to '{path.resolve()}')") from None
-    except IsADirectoryError:
-        raise UserError(f"{where}: is a directory, expected a TOML sweep file") from None
-    except UnicodeDecodeError as exc:
-        raise UserError(f"{where}: not valid UTF-8 text (byte {exc.start})") from None
-    except OSError as exc:
-        raise UserError(f"{where}: cannot read sweep file: {exc.strerror or exc}") from None
+    _, text = read_input_text(path, where, "sweep")
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

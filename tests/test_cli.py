@@ -364,3 +364,15 @@ def test_a_full_disk_is_one_line_and_leaves_nothing(small_scene, tmp_path):
     err = res.stderr.strip()
     assert len(err.splitlines()) == 1 and "Traceback" not in err and "No space left on device" in err, err
     assert res.stdout.strip().endswith("rc=1")       # and the disk holds nothing afterwards
+
+
+@pytest.mark.parametrize("command", [["check", "{f}"], ["arch", "--arch", "{f}"], ["sweep", "{f}", "--out", "{o}"]])
+def test_an_input_that_is_a_fifo_is_one_line_not_a_hang(tmp_path, command):
+    """Every input file (scene, architecture, sweep) is read through one reader that refuses what is not a
+    regular file: reading a FIFO with no writer blocked forever."""
+    fifo = tmp_path / "input.toml"
+    os.mkfifo(fifo)
+    args = [a.format(f=fifo, o=tmp_path / "out") for a in command]
+    res = subprocess.run([sys.executable, "-m", "pipeline_sim", *args], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1 and "not a regular file" in res.stderr, res.stderr
+    assert not (tmp_path / "out").exists()
