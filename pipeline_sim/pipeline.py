@@ -31,6 +31,7 @@ import pandas as pd
 import simpy
 
 from pipeline_sim.counters import CounterSet
+from pipeline_sim.regions import record_count
 
 END = None  # end-of-stream marker
 
@@ -66,7 +67,7 @@ class Fifo:
     def weight(self, item: Any) -> int:
         if item is END:
             return 0 if self.by_records else 1
-        return min(max(_records(item[1]), 1), self.capacity) if self.by_records else 1
+        return min(max(record_count(item[1]), 1), self.capacity) if self.by_records else 1
 
     def put(self, item: Any) -> simpy.Event | None:
         """Put ``item``: None when it went in now, else an event that fires when it does."""
@@ -151,13 +152,6 @@ class Stage:
     def mark(self, start: float, end: float, state: str) -> None:
         if end > start:
             self.trace.append((start, end, state))
-
-
-def _records(batch: Any) -> int:
-    """Records in a batch: the length of a structure-of-arrays dict's arrays, or of an array."""
-    if isinstance(batch, dict):
-        return len(next(iter(batch.values()))) if batch else 0
-    return len(batch) if hasattr(batch, "__len__") else 1
 
 
 def _put(env: simpy.Environment, stage: Stage, out: Channel, item: Any):
@@ -299,7 +293,7 @@ def run_in_order(stages: list[Stage], source_batches: list[Any], after_batch: Ca
 
     def push(i: int, batch: Any) -> None:
         outputs, cycles = stages[i].step(batch)
-        logs[i].append([[_records(o) for o in outputs], cycles])
+        logs[i].append([[record_count(o) for o in outputs], cycles])
         if i < last:
             for o in outputs:
                 push(i + 1, o)

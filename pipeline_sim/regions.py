@@ -40,6 +40,13 @@ import numpy as np
 from pipeline_sim.sampling import SampleSet
 
 
+def record_count(records: Any) -> int:
+    """Records in a batch: the length of a structure-of-arrays dict's arrays, or of an array."""
+    if isinstance(records, dict):
+        return len(next(iter(records.values()))) if records else 0
+    return len(records) if hasattr(records, "__len__") else 1
+
+
 @dataclass(frozen=True)
 class RegionPlan:
     """Bands of ``rows`` image rows (the last one may be shorter) of a ``width x height`` frame."""
@@ -89,8 +96,7 @@ class RegionBatch:
     records: Any
 
     def __len__(self) -> int:
-        r = self.records
-        return len(next(iter(r.values()), ())) if isinstance(r, dict) else len(r)
+        return record_count(self.records)
 
 
 def bin_triangles(bounds: np.ndarray, ids: np.ndarray, plan: RegionPlan) -> list[np.ndarray]:

@@ -299,8 +299,7 @@ def test_every_setting_declares_what_it_can_change():
     for path in effects:
         section, key = path.split(".")
         value = _alternative(path, getattr(getattr(arch, section), key))
-        apply_overrides(arch, [f"{path}={value!r}".replace("True", "true").replace("False", "false")
-                               .replace("'", '"')])
+        apply_overrides(arch, [_override(path, value)])
 
 
 @pytest.fixture(scope="module")
@@ -312,7 +311,9 @@ def blurred_scene(root):
 
 
 def _override(path, value):
-    return f"{path}={value!r}".replace("True", "true").replace("False", "false").replace("'", '"')
+    from pipeline_sim.sweep import toml_literal
+
+    return f"{path}={toml_literal(value)}"
 
 
 def test_settings_declared_not_to_change_the_image_do_not(blurred_scene):

@@ -14,7 +14,6 @@ and powers of two; this file 1e-30 to 1e30, for every tile-test
 configuration.
 """
 
-import numpy as np
 import pytest
 
 from hard_cases.harness import Case, check_scale_invariant, check_tiles, document, mesh_lens, project, sphere
