@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING
 from pipeline_sim.config import ArchConfig
 from pipeline_sim.errors import UserError
 from pipeline_sim.regions import plan_regions, row_step
+from pipeline_sim.sampling import check_spp
 
 if TYPE_CHECKING:
     from pipeline_sim.draw import Draw
@@ -187,16 +188,8 @@ def available_memory() -> int:
 def check_samples(spp: int, arch: ArchConfig, where: str) -> None:
     """The sample pattern's rule on ``spp`` (not applied in conservative mode,
     which takes one sample per pixel)."""
-    if arch.pipeline.mode == "conservative":
-        return
-    pattern = arch.pipeline.sample_pattern
-    if pattern in ("net", "sobol") and spp & (spp - 1):
-        raise UserError(f"{where}: spp = {spp} must be a power of two for the '{pattern}' sample pattern "
-                        "(pipeline.sample_pattern)")
-    n = arch.pipeline.interleave_tuples
-    if pattern == "interleave" and (spp > n or n % spp):
-        raise UserError(f"{where}: spp = {spp} must divide pipeline.interleave_tuples = {n} for the "
-                        "'interleave' sample pattern")
+    if arch.pipeline.mode != "conservative":
+        check_spp(arch.pipeline.sample_pattern, spp, arch.pipeline.interleave_tuples, where)
 
 
 def check_memory(estimate: MemoryEstimate, where: str, what: str) -> None:

@@ -45,6 +45,7 @@ from pipeline_sim.errors import UserError, did_you_mean
 __all__ = [
     "PATTERNS",
     "SampleSet",
+    "check_spp",
     "interleave_groups",
     "interleave_tuple_set",
     "concentric_disk",
@@ -600,6 +601,19 @@ def _seed_key(seed: int) -> np.uint64:
     return np.uint64(z ^ (z >> 31))
 
 
+def check_spp(pattern: str, spp: int, interleave_tuples: int, where: str = "") -> None:
+    """The rule of sample pattern ``pattern`` on ``spp``: a power of two for ``net`` and ``sobol``
+    (their strata), a divisor of ``interleave_tuples`` for ``interleave`` (each pixel takes a whole
+    group of the tuple set). A one-line :class:`UserError` prefixed with ``where`` otherwise."""
+    prefix = f"{where}: " if where else ""
+    if pattern in ("net", "sobol") and spp & (spp - 1):
+        raise UserError(f"{prefix}spp = {spp} must be a power of two for the '{pattern}' sample pattern "
+                        "(pipeline.sample_pattern)")
+    if pattern == "interleave" and (spp > interleave_tuples or interleave_tuples % spp):
+        raise UserError(f"{prefix}spp = {spp} must divide pipeline.interleave_tuples = {interleave_tuples} for "
+                        "the 'interleave' sample pattern")
+
+
 def make_samples(
     width: int,
     height: int,
@@ -647,8 +661,7 @@ def make_samples(
     if pattern == "interleave":
         return _interleave_samples(width, height, spp, seed, lens=lens, motion=motion, n_tuples=interleave_tuples,
                                    lens_shape=lens_shape, rows=rows)
-    if pattern in ("net", "sobol") and spp & (spp - 1):
-        raise UserError(f"spp = {spp} must be a power of two for the '{pattern}' sample pattern")
+    check_spp(pattern, spp, interleave_tuples)
     if rows is None:
         r0, r1 = 0, height
     else:
@@ -713,8 +726,7 @@ def interleave_tuple_set(n: int, spp: int, lens_shape: str = "disk") -> np.ndarr
     """
     n = _check_int("interleave_tuples", n, 1, 64)
     spp = _check_int("spp", spp, 1, n)
-    if n % spp:
-        raise UserError(f"interleave: spp = {spp} must divide pipeline.interleave_tuples = {n}")
+    check_spp("interleave", spp, n, "interleave")
     groups = n // spp
     rng = np.random.default_rng(0x1EAF)  # a fixed table, the same in every run
     if spp & (spp - 1) == 0:
