@@ -64,7 +64,18 @@ def test_pixel_space_transform_matches_formula():
 def test_facing_is_claimed_only_when_true_everywhere(tri, cull):
     """facing = +1 (-1) only if D(t, u, v) > 0 (< 0) on a dense grid, computed in float64;
     culled as back-facing only when facing is -1."""
-    q, r, lx, ly = tri
+    check_facing(*tri, cull)
+
+
+@given(moving_triangle(), st.floats(-100.0, 100.0), st.booleans())
+def test_facing_holds_at_every_homogeneous_scale(tri, log2_scale, cull):
+    """The same check for the triangle's coordinates times 2^log2_scale (not a power of two in general):
+    setup normalises each triangle's scale, and the backface test must stay conservative at any scale."""
+    scale = 2.0 ** log2_scale
+    check_facing(*(a * scale for a in tri), cull)
+
+
+def check_facing(q, r, lx, ly, cull):
     setup, alive, events = run_setup(q, r, lx, ly, backface_culling=cull)
     status = setup.last_status[0]
     if status not in (ST_OK, ST_BACKFACE):
