@@ -61,6 +61,7 @@ import numpy as np
 
 from pipeline_sim.config import IMAGE, ArchConfig, load_arch, reference_arch, settings_of
 from pipeline_sim.output import atomic_save_npy
+from pipeline_sim.pass_state import pass_state_of
 from pipeline_sim.errors import UserError, did_you_mean
 
 __all__ = ["METRICS", "REFERENCE_KINDS", "ReferenceSpec", "to_display", "error_metrics", "error_map",
@@ -275,12 +276,11 @@ def _render_reference(scene, spec: ReferenceSpec, arch: ArchConfig) -> np.ndarra
     from pipeline_sim.render import run_pass, scene_pass
 
     if spec.kind == "pipeline":
-        result = run_pass(scene_pass(scene, arch, spp=spec.spp, seed=spec.seed, sample_pattern="net",
-                                     sample_table=None))
+        result = run_pass(scene_pass(scene, arch, spp=spec.spp, seed=spec.seed, sample_table=None,
+                                     state=pass_state_of(arch).replace(sample_pattern="net")))
         return result.image.astype(np.float32)
     table = _sobol_table(spec.passes, spec.seed)
-    base = scene_pass(scene, arch, spp=1, seed=spec.seed, sample_pattern="table",
-                      sample_table=table[:1])
+    base = scene_pass(scene, arch, spp=1, seed=spec.seed, sample_table=table[:1])
     acc = np.zeros((scene.image.height, scene.image.width, 4), dtype=np.float64)
     for row in table:
         acc += run_pass(dataclasses.replace(base, sample_table=row[None, :])).image

@@ -32,6 +32,7 @@ import numpy as np
 from pipeline_sim.definitions import BLEND_MODES, DEPTH_FUNCS
 from pipeline_sim.errors import UserError, did_you_mean, read_input_text, unknown_key_error
 from pipeline_sim.sampling import PATTERNS
+from pipeline_sim.settings import ACCURACY, COUNTERS, CYCLES, EFFECTS, IMAGE, setting  # noqa: F401 (re-exported)
 
 DEFAULT_ARCH_PATH = Path(__file__).with_name("data") / "default_arch.toml"
 
@@ -47,17 +48,6 @@ TILE_TEST_ALGORITHMS = ("hierarchical", "bbox", "hull", "dual_space", "two_stage
 EDGE_SOLVERS = ("linearized", "quadratic")
 # an architecture names a generated pattern; a sample table comes with a pass
 SAMPLE_PATTERNS = tuple(p for p in PATTERNS if p != "table")
-
-
-IMAGE, ACCURACY, COUNTERS, CYCLES = "image", "accuracy", "counters", "cycles"
-#: What a setting can change, from most to least (see the module docstring).
-EFFECTS = (IMAGE, ACCURACY, COUNTERS, CYCLES)
-
-
-def setting(default: Any, effect: str, reference: Any = None) -> Any:
-    """A configuration field with its declared effect (and, for ``accuracy``, the reference's value)."""
-    assert effect in EFFECTS and (reference is None or effect == ACCURACY)
-    return field(default=default, metadata={"effect": effect, "reference": reference})
 
 
 @dataclass

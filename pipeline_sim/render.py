@@ -23,6 +23,7 @@ from pipeline_sim.config import ArchConfig, PipelineConfig
 from pipeline_sim.counters import CounterSet, counters_frame
 from pipeline_sim.draw import Draw, build_draw
 from pipeline_sim.errors import UserError
+from pipeline_sim.pass_state import PassState, pass_state_of
 from pipeline_sim.pipeline import Stage, TimingResult, chunks, count_records, cycles_for, run_in_order, simulate
 from pipeline_sim.regions import (RegionBatch, RegionCursor, RegionPlan, RegionSamples, bin_triangles, plan_regions,
                                   region_step, row_step)
@@ -66,6 +67,7 @@ class RenderPass:
     draw: Draw
     arch: ArchConfig
     spp: int
+    state: PassState | None = None  # None: the state the architecture file carries (pass_state_of)
     seed: int = 0
     name: str = "main"
     shader: Callable = standard_shader
@@ -73,9 +75,12 @@ class RenderPass:
     texture: np.ndarray | str | None = None
     clear_color: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
     clear_depth: float = 1.0
-    sample_pattern: str | None = None  # None: the architecture's pipeline.sample_pattern
-    sample_table: np.ndarray | None = None
+    sample_table: np.ndarray | None = None  # given: the pass samples it (pattern "table")
     zcull_refresh: str = "timed"  # one of ZCULL_REFRESH
+
+    def __post_init__(self) -> None:
+        if self.state is None:
+            self.state = pass_state_of(self.arch)
 
 
 @dataclass
@@ -124,7 +129,8 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     start = time.perf_counter()
     arch = p.arch
     draw = p.draw
-    conservative = arch.pipeline.mode == "conservative"
+    state = p.state
+    conservative = state.conservative
     ts = 1 if conservative else arch.tile_traverser.tile_size
     motion, lens = draw.has_motion, draw.has_lens
     texture = textures[p.texture] if isinstance(p.texture, str) else p.texture
@@ -134,14 +140,14 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         raise UserError(f"pass {p.name}: zcull_refresh '{p.zcull_refresh}' is not one of {', '.join(ZCULL_REFRESH)}")
     ordered = p.zcull_refresh == "ordered"
     spp = 1 if conservative else p.spp
-    pattern = p.sample_pattern or ("table" if p.sample_table is not None else arch.pipeline.sample_pattern)
+    pattern = "table" if p.sample_table is not None else state.sample_pattern
 
     def region_samples(rows: tuple[int, int]):
         return make_samples(draw.width, draw.height, spp, p.seed, lens=lens, motion=motion, pattern=pattern,
-                            table=p.sample_table, interleave_tuples=arch.pipeline.interleave_tuples, rows=rows)
+                            table=p.sample_table, interleave_tuples=state.interleave_tuples, rows=rows)
 
-    cached_shading = arch.shading.mode == "cache" and not conservative
-    step = row_step(ts, arch.tile_traverser.coarse_factor, arch.shading.shading_rate if cached_shading else None)
+    cached_shading = state.shading_mode == "cache" and not conservative
+    step = row_step(ts, arch.tile_traverser.coarse_factor, state.shading_rate if cached_shading else None)
     plan = plan_regions(draw.width, draw.height, spp, arch.pipeline.region_samples, step)
     samples = RegionSamples(plan, region_samples)
     first = samples.region(0)
@@ -150,21 +156,22 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         raise UserError(f"pass {p.name}: tile_test.algorithm = 'interleave_uvt' needs the 'interleave' sample "
                         f"pattern, not '{pattern}'")
 
-    setup = TriangleSetup(arch.triangle_setup, draw, ts, hull=algorithm == "hull")
+    setup = TriangleSetup(arch.triangle_setup, draw, ts, state.backface_culling, hull=algorithm == "hull")
     # the hierarchical tests of Munkberg11 start at coarse tiles; the others cover
     # their bounding geometry flat, as Wu13 does
     traverser = TileTraverser(arch.tile_traverser, setup.table, ts, draw.width, draw.height,
                               coarse_test=algorithm == "hierarchical")
     tile_test = TileTest(arch.tile_test, setup.table, ts, draw.width, draw.height, draw.depth_w,
-                         tuples=first.tuples)
+                         state.clip.as_array(), tuples=first.tuples)
     spec = arch.pipeline.specialize
-    zcull = ZCull(arch.zcull, arch.rop.depth_test, ts, draw.width, draw.height, p.clear_depth,
+    zcull = ZCull(arch.zcull, state.depth_test, ts, draw.width, draw.height, p.clear_depth,
                   motion or not spec, lens or not spec)
     if conservative:
         zcull.active = False
-    tester = SampleTester(arch.sample_tester, setup.table, None, ts, arch.triangle_setup.backface_culling, spec)
-    shading = Shading(arch.shading, draw, setup.table, None, p.shader, p.params, texture, conservative)
-    rop = Rop(arch.rop, draw.width, draw.height, spp, p.clear_color, p.clear_depth, zcull if zcull.active else None,
+    tester = SampleTester(arch.sample_tester, setup.table, None, ts, state.backface_culling, spec)
+    shading = Shading(arch.shading, state.shading_mode, state.shading_rate, draw, setup.table, None, p.shader,
+                      p.params, texture, conservative)
+    rop = Rop(arch.rop, state, draw.width, draw.height, spp, p.clear_color, p.clear_depth, zcull if zcull.active else None,
               first if zcull.active else None, rows=plan.bounds(0), keep_depth=keep_depth)
     # each unit that holds a region's samples or buffers is handed them as its batches move on; the
     # sample tester and shading take a region's samples with its first batch, the ROP (which needs

@@ -22,7 +22,7 @@ def test_static_flat_scene_matches_exact_coverage(root):
     draw = build_draw(scene)
     draw.material[:] = 0  # flat: the color says which object covers the pixel
     assert not draw.has_motion and not draw.has_lens
-    res = run_pass(RenderPass(draw=draw, arch=load_arch(), spp=1, sample_pattern="table", sample_table=CENTRE,
+    res = run_pass(RenderPass(draw=draw, arch=load_arch(), spp=1, sample_table=CENTRE,
                               clear_color=(0, 0, 0, 1)))
     ref, tid, _ = render_static(draw.q, draw.color.astype(np.float64), 160, 90)
     agree = np.all(np.abs(res.image[..., :3] - ref) < 1e-5, axis=2)
@@ -133,7 +133,7 @@ def test_samples_on_shared_edges_and_vertices_covered_once():
     q[..., 3] = wv
     d = draw_from_clip(q, None, None, None, np.ones((len(q), 3)), w, h)
     arch = load_arch(overrides=["rop.depth_test='always'", "rop.blend='add'", "shading.mode='per_sample'"])
-    res = run_pass(RenderPass(draw=d, arch=arch, spp=1, sample_pattern="table", sample_table=CENTRE,
+    res = run_pass(RenderPass(draw=d, arch=arch, spp=1, sample_table=CENTRE,
                               clear_color=(0, 0, 0, 0)))
     # per-sample shading interpolates the unit color, so allow its rounding
     np.testing.assert_allclose(res.image[..., 0], np.ones((h, w)), atol=1e-6)
@@ -204,7 +204,7 @@ def test_later_pass_samples_earlier_pass_as_texture(root):
                     dtype=np.float64)
     second = RenderPass(draw=draw_from_clip(quad, width=64, height=36), arch=load_arch(
         overrides=["shading.mode='per_sample'"]), spp=1, name="second", shader=_texture_lookup_shader,
-        texture="first", sample_pattern="table", sample_table=CENTRE)
+        texture="first", sample_table=CENTRE)
     out = run_passes([first, second])
     np.testing.assert_allclose(out["second"].image, out["first"].image, atol=1e-6)
 

@@ -14,6 +14,7 @@ import pytest
 
 from pipeline_sim.config import BLEND_MODES, DEPTH_FUNCS, RopConfig
 from pipeline_sim.definitions import N_OPS, OP_ADD, OP_CMP
+from pipeline_sim.pass_state import PassState
 from units.rop import EVENTS, Rop, rop_kernel
 
 DEPTH_CMP = {
@@ -135,8 +136,8 @@ def test_final_depth_is_running_extremum(func, pick):
     sidx = rng.integers(0, spp, 300).astype(np.int32)
     sidx[pix == 4] = 0  # pixel 4 only ever touches sample 0
     z = rng.random(300).astype(np.float32)
-    cfg = RopConfig(depth_test=func, blend="replace", depth_write=True)
-    rop = Rop(cfg, npix, 1, spp, (0, 0, 0, 1), clear)
+    rop = Rop(RopConfig(), PassState(depth_test=func, blend="replace", depth_write=True), npix, 1, spp, (0, 0, 0, 1),
+              clear)
     batch = dict(pix=pix, sidx=sidx, z=z, color=rng.random((300, 4)).astype(np.float32),
                  noread=np.zeros(300, np.bool_))
     rop.run(batch)
@@ -154,7 +155,7 @@ def test_replace_less_color_is_first_strict_minimum():
     slot = rng.integers(0, nslot, n)
     z = DEPTH_LEVELS[rng.integers(0, 4, n)]  # all below the clear depth 1.0
     color = rng.random((n, 4)).astype(np.float32)
-    rop = Rop(RopConfig(depth_test="less"), nslot, 1, 1, (9, 9, 9, 9), 1.0)
+    rop = Rop(RopConfig(), PassState(depth_test="less"), nslot, 1, 1, (9, 9, 9, 9), 1.0)
     rop.run(dict(pix=slot.astype(np.int32), sidx=np.zeros(n, np.int32), z=z, color=color,
                  noread=np.zeros(n, np.bool_)))
     for s in range(nslot):
@@ -175,8 +176,7 @@ def test_rop_class_batches_and_counters(func, blend):
     rng = np.random.default_rng(DEPTH_FUNCS.index(func) * 10 + BLEND_MODES.index(blend))
     width, height, spp = 4, 3, 2
     clear_color = (0.25, -0.5, 1.0, 1.0)
-    cfg = RopConfig(depth_test=func, blend=blend, depth_write=True)
-    rop = Rop(cfg, width, height, spp, clear_color, 0.75)
+    rop = Rop(RopConfig(), PassState(depth_test=func, blend=blend, depth_write=True), width, height, spp, clear_color, 0.75)
     ref_depth = [np.float32(0.75)] * (width * height * spp)
     ref_color = [[np.float32(c) for c in clear_color] for _ in range(width * height * spp)]
     sums = np.zeros(len(EVENTS), np.int64)
@@ -200,7 +200,7 @@ def test_rop_class_batches_and_counters(func, blend):
 def test_depth_write_false_leaves_depth_untouched():
     rng = np.random.default_rng(3)
     for func in DEPTH_FUNCS:
-        rop = Rop(RopConfig(depth_test=func, depth_write=False, blend="add"), 4, 4, 4, (0, 0, 0, 0), 0.5)
+        rop = Rop(RopConfig(), PassState(depth_test=func, depth_write=False, blend="add"), 4, 4, 4, (0, 0, 0, 0), 0.5)
         before = rop.depth.copy()
         frags = random_frags(rng, 500, 16, 4)
         _, _, ev, traffic = rop.run(dict(zip(("pix", "sidx", "z", "color", "noread"), frags)))
@@ -221,7 +221,7 @@ def test_depth_write_false_leaves_depth_untouched():
 def test_resolve_is_per_pixel_mean_over_samples():
     rng = np.random.default_rng(5)
     width, height, spp = 7, 5, 8
-    rop = Rop(RopConfig(), width, height, spp, (0, 0, 0, 1), 1.0)
+    rop = Rop(RopConfig(), PassState(), width, height, spp, (0, 0, 0, 1), 1.0)
     rop.color[:] = rng.normal(size=rop.color.shape).astype(np.float32)
     got = rop.resolve()
     assert got.shape == (height, width, 4) and got.dtype == np.float32
@@ -235,7 +235,7 @@ def test_resolve_is_per_pixel_mean_over_samples():
 
 def test_resolve_after_rendering_fragments():
     """End to end through run(): one pixel gets a full-coverage color, another half."""
-    rop = Rop(RopConfig(depth_test="less"), 2, 1, 4, (0, 0, 0, 0), 1.0)
+    rop = Rop(RopConfig(), PassState(depth_test="less"), 2, 1, 4, (0, 0, 0, 0), 1.0)
     pix = np.array([0, 0, 0, 0, 1, 1], np.int32)
     sidx = np.array([0, 1, 2, 3, 0, 2], np.int32)
     color = np.tile(np.array([[1.0, 2.0, 4.0, 1.0]], np.float32), (6, 1))

@@ -309,7 +309,7 @@ def _shading_unit(cfg, ref, width, height, spp, shader, rng):
                               v=rng.uniform(-1, 1, npix * spp).astype(np.float32),
                               t=rng.random(npix * spp).astype(np.float32))
     table = SimpleNamespace(ref=ref)
-    return Shading(cfg, draw, table, samples, shader, np.array([cfg.shading_rate], np.float32), None, False)
+    return Shading(cfg, cfg.mode, cfg.shading_rate, draw, table, samples, shader, np.array([cfg.shading_rate], np.float32), None, False)
 
 
 def _batch(rng, tri, b0, b1, b2, npix, spp):

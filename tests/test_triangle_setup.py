@@ -15,8 +15,7 @@ W, H = 48, 32
 
 def run_setup(q, r, lx=None, ly=None, backface_culling=False, tile_size=8):
     d = draw_from_clip(q, r, lx, ly, width=W, height=H)
-    setup = TriangleSetup(load_arch(overrides=[f"triangle_setup.backface_culling={str(backface_culling).lower()}"]
-                                    ).triangle_setup, d, tile_size)
+    setup = TriangleSetup(load_arch().triangle_setup, d, tile_size, backface_culling)
     alive, ops, events = setup.run(np.arange(d.n, dtype=np.int64))
     return setup, alive, events
 

@@ -20,6 +20,7 @@ import pipeline_sim.render as render
 import units.rop as rop_mod
 import units.zcull as zc
 from pipeline_sim.config import RopConfig, load_arch
+from pipeline_sim.pass_state import PassState
 from pipeline_sim.draw import draw_from_clip
 from pipeline_sim.regions import RegionPlan, RegionSamples
 from pipeline_sim.render import RenderPass, run_pass
@@ -255,7 +256,7 @@ def test_refresh_matches_brute_force_after_every_batch(func, depth_write, slices
     plan = RegionPlan(w, h, rows)
     regions = RegionSamples(plan, lambda r: make_samples(w, h, spp, 5, lens=True, motion=True, rows=r))
     zcull = zc.ZCull(cfg, func, ts, w, h, 1.0)
-    rop = Rop(RopConfig(depth_test=func, depth_write=depth_write), w, h, spp, (0, 0, 0, 1), 1.0, zcull,
+    rop = Rop(RopConfig(), PassState(depth_test=func, depth_write=depth_write), w, h, spp, (0, 0, 0, 1), 1.0, zcull,
               regions.region(0), rows=plan.bounds(0))
     levels = np.array([0.0, -0.0, 0.25, 0.5, 0.5, 0.75, 1.0], np.float32)
     for region in range(plan.count):

@@ -121,7 +121,7 @@ class Rop:
     events = EVENTS
     timing_dependent = TIMING_DEPENDENT
 
-    def __init__(self, config, width: int, height: int, spp: int, clear_color, clear_depth: float, zcull=None,
+    def __init__(self, config, state, width: int, height: int, spp: int, clear_color, clear_depth: float, zcull=None,
                  samples=None, rows: tuple[int, int] | None = None, keep_depth: bool = True):
         self.config = config
         self.width = width
@@ -129,8 +129,9 @@ class Rop:
         self.spp = spp
         self.clear_color = np.asarray(clear_color, np.float32)
         self.clear_depth = np.float32(clear_depth)
-        self.func = DEPTH_FUNCS.index(config.depth_test)
-        self.blend = BLEND_MODES.index(config.blend)
+        self.func = DEPTH_FUNCS.index(state.depth_test)
+        self.depth_write = state.depth_write
+        self.blend = BLEND_MODES.index(state.blend)
         self.zcull = zcull
         rows = (0, height) if rows is None else tuple(rows)
         self.one_region = rows == (0, height)
@@ -174,7 +175,7 @@ class Rop:
         traffic = np.zeros(2, np.int64)
         prior = np.empty(len(batch["pix"]), np.float32)
         rop_kernel(batch["pix"], batch["sidx"], batch["z"], batch["color"], batch["noread"], self.spp, self.pix0,
-                   self.func, self.config.depth_write, self.blend, self.depth, self.color, prior, ops, events,
+                   self.func, self.depth_write, self.blend, self.depth, self.color, prior, ops, events,
                    traffic)
         request = (batch["pix"], batch["sidx"], prior) if self.zcull is not None else None
         return request, ops, events, traffic

@@ -257,9 +257,10 @@ class Shading:
     events = EVENTS
     timing_dependent = TIMING_DEPENDENT
 
-    def __init__(self, config, draw, table, samples, shader, params: np.ndarray, texture: np.ndarray | None,
-                 conservative: bool):
+    def __init__(self, config, mode: str, shading_rate: float, draw, table, samples, shader, params: np.ndarray,
+                 texture: np.ndarray | None, conservative: bool):
         self.config = config
+        self.shading_rate = shading_rate
         self.draw = draw
         self.table = table
         self.samples = samples  # of the screen region the batches are in (``use_samples``)
@@ -268,7 +269,7 @@ class Shading:
         self.texture = (np.zeros((1, 1, 4), np.float32) if texture is None
                         else np.ascontiguousarray(texture, dtype=np.float32))
         self.conservative = conservative
-        self.cached = config.mode == "cache" and not conservative
+        self.cached = mode == "cache" and not conservative
         ways = config.cache_ways
         nsets = config.cache_entries // ways
         self.tags = np.full((nsets, ways), -1, np.int64)
@@ -276,8 +277,8 @@ class Shading:
         self.entry_req = np.full(nsets * ways, -1, np.int32)
         self.entry_color = np.zeros((nsets * ways, 4), np.float32)
         self.clock = 0
-        self.grid_w = int(np.ceil(draw.width / config.shading_rate))
-        self.grid_h = int(np.ceil(draw.height / config.shading_rate))
+        self.grid_w = int(np.ceil(draw.width / shading_rate))
+        self.grid_h = int(np.ceil(draw.height / shading_rate))
 
     def use_samples(self, samples) -> None:
         """Shade the next batches with ``samples`` (their screen region's; conservative mode reads none)."""
@@ -303,7 +304,7 @@ class Shading:
             req_tri = np.empty(n, np.int32)
             req_l = np.empty((3, n), np.float64)
             nreq, self.clock = cache_kernel(
-                batch["tri"], batch["b0"], batch["b1"], batch["b2"], self.table.ref, self.config.shading_rate,
+                batch["tri"], batch["b0"], batch["b1"], batch["b2"], self.table.ref, self.shading_rate,
                 self.grid_w, self.grid_h, self.tags, self.stamps, self.entry_req, self.entry_color, self.clock,
                 REPL_LRU if self.config.replacement == "lru" else REPL_FIFO, color, sample_req, req_entry,
                 req_tri, req_l, ops, events)

@@ -465,8 +465,11 @@ class TileTest:
     timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, table, tile_size: int, width: int, height: int,
-                 depth_w: tuple[float, float] | None = None, tuples: np.ndarray | None = None):
+                 depth_w: tuple[float, float] | None = None, clips: np.ndarray | None = None,
+                 tuples: np.ndarray | None = None):
         self.config = config
+        # the user clip planes (t_lo, t_hi, u_lo, u_hi, v_lo, v_hi) of the draw the next batches belong to
+        self.clips = np.array([0.0, 1.0, -1.0, 1.0, -1.0, 1.0]) if clips is None else np.asarray(clips, np.float64)
         self.table = table
         self.tile_size = tile_size
         self.width = width
@@ -495,7 +498,7 @@ class TileTest:
         cfg = self.config
         tile_test_kernel(tiles["tri"], tiles["tx"], tiles["ty"], self.tile_size, self.width, self.height,
                          self.algorithm, cfg.edge_test, cfg.edge_solver == "quadratic", cfg.gamma == "tile",
-                         cfg.lens_bounds, cfg.clips,
+                         cfg.lens_bounds, self.clips,
                          t.p0, t.dp, t.l0, t.dl, t.t_span, t.flags, t.edge_f, t.edge_h, t.edge_gamma, t.edge_g,
                          t.edge_fg, t.edge_abs, t.plane_n, t.plane_d, t.hull, t.hull_n, t.hull_off, self.tuples,
                          self.depth_c1, self.depth_c0, keep,

@@ -538,8 +538,9 @@ class TriangleSetup:
     events = EVENTS
     timing_dependent = TIMING_DEPENDENT
 
-    def __init__(self, config, draw, tile_size: int, hull: bool = False):
+    def __init__(self, config, draw, tile_size: int, backface_culling: bool = False, hull: bool = False):
         self.config = config
+        self.backface_culling = backface_culling
         self.draw = draw
         self.tile_size = tile_size
         self.hull = hull  # also set up the convex hull of the moving vertices (McGuire10)
@@ -552,7 +553,7 @@ class TriangleSetup:
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
         setup_kernel(ids, d.q, d.r, d.lens_x, d.lens_y, d.width, d.height, self.tile_size,
-                     self.config.backface_culling, t.p0, t.dp, t.l0, t.dl, t.p0_32, t.dp_32,
+                     self.backface_culling, t.p0, t.dp, t.l0, t.dl, t.p0_32, t.dp_32,
                      t.l0_32, t.dl_32, t.t_span, t.bounds, t.facing, t.flags, t.edge_f, t.edge_h,
                      t.edge_gamma, t.edge_g, t.edge_fg, t.edge_abs, t.ref, t.edge_eps, t.plane_n, t.plane_d, self.draw.depth_w is not None,
                      status, ops, events)

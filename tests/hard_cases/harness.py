@@ -52,6 +52,7 @@ import numpy as np
 
 from pipeline_sim.config import load_arch
 from pipeline_sim.draw import draw_from_clip
+from pipeline_sim.pass_state import pass_state_of
 from pipeline_sim.render import RenderPass, run_pass
 from triangles import sample_inside_points, setup_and_tiles
 from units.sample_tester import inside_test
@@ -106,7 +107,8 @@ def render(draw, *, spp=16, seed=0, overrides=(), algorithm="hierarchical", back
            table=None, clear_depth=1.0, clear_color=(0.0, 0.0, 0.0, 0.0)):
     a = arch(*overrides, algorithm=algorithm, backface=backface)
     return run_pass(RenderPass(draw=draw, arch=a, spp=spp, seed=seed, clear_color=clear_color,
-                               clear_depth=clear_depth, sample_pattern=pattern, sample_table=table))
+                               clear_depth=clear_depth, sample_table=table,
+                               state=pass_state_of(a).replace(sample_pattern=pattern)))
 
 
 def render_counts(draw, **kw):

@@ -94,7 +94,7 @@ def test_float32_matches_float64_reference(case):
 def test_setup_reports_mixed_facing(case):
     """Setup must not claim a facing: the triangle survives backface culling."""
     d = case.draw()
-    setup = TriangleSetup(load_arch(overrides=["triangle_setup.backface_culling=true"]).triangle_setup, d, 8)
+    setup = TriangleSetup(load_arch().triangle_setup, d, 8, backface_culling=True)
     alive, _, events = setup.run(np.arange(1))
     assert list(alive) == [0]
     assert setup.table.facing[0] == 0 and events[EV_MIXED] == 1
