@@ -69,21 +69,20 @@ def _package_versions() -> dict[str, str]:
 
 
 def _load_inputs(args):
+    """The workload file of ``args.scene`` with ``--spp``/``--seed``, on the architecture of
+    ``--arch``/``--set``/``--tile``."""
     from pipeline_sim.config import load_arch
-    from pipeline_sim.scene import check_image_value, load_scene
+    from pipeline_sim.scene import check_image_value
+    from pipeline_sim.workload import read_workload
 
-    scene = load_scene(args.scene)
-    image = scene.image
-    if args.spp is not None:
-        image = dataclasses.replace(image, spp=check_image_value("spp", args.spp, "--spp"))
-    if args.seed is not None:
-        image = dataclasses.replace(image, seed=check_image_value("seed", args.seed, "--seed"))
-    scene = scene.replace(image=image)
+    cls, data = read_workload(args.scene)
+    image = {name: check_image_value(name, value, f"--{name}")
+             for name, value in (("spp", args.spp), ("seed", args.seed)) if value is not None}
     overrides = list(args.set or [])
     if args.tile is not None:
         overrides.append(f"tile_traverser.tile_size={args.tile}")
     arch = load_arch(args.arch, overrides)
-    return scene, arch
+    return cls.load(Path(args.scene), data, arch, image), arch
 
 
 def _progress_bar(quiet: bool):
@@ -102,18 +101,13 @@ def _progress_bar(quiet: bool):
 
 
 def cmd_run(args) -> int:
-    from pipeline_sim.preflight import validate_run
-
-    scene, arch = _load_inputs(args)
-    draw = validate_run(scene, [arch], str(args.scene))  # all of it before a kernel module is imported
-
-    import numpy as np
+    workload, arch = _load_inputs(args)
+    workload.check()  # all of it before a kernel module is imported
 
     from pipeline_sim.jit import warm_up
-    from pipeline_sim.output import write_exr, write_json, write_png
+    from pipeline_sim.output import write_run
     from pipeline_sim.output_folder import OutputFolder
-    from pipeline_sim.render import render_scene
-    from reports.run_report import headline, html_report, markdown_report, summary_text
+    from reports.run_report import summary_text
 
     with OutputFolder(args.out, "run", force=args.force) as out:
         compile_s = warm_up()
@@ -121,37 +115,12 @@ def cmd_run(args) -> int:
             print(f"numba kernels ready in {compile_s:.2f} s (compiled on first use, then loaded from cache)")
         update, close = _progress_bar(args.quiet)
         try:
-            result = render_scene(scene, arch, progress=update, draw=draw)
+            result = workload.run(progress=update)
         finally:
             close()
-        info = {
-            "scene": str(args.scene),
-            "scene_digest": scene.digest,
-            "image": dataclasses.asdict(scene.image),
-            "seed": scene.image.seed,
-            "arch": arch.to_dict(),
-            "dimensions": result.dimensions,
-            "units_used": result.units_used,
-            "bypassed": [u for u in ("zcull", "sample_tester") if u not in result.units_used],
-            "screen_regions": result.region_info,
-            "frame_cycles": result.timing.frame_cycles,
-            "headline": headline(result),
-            "wall_time_s": result.wall_time,
-            "compile_time_s": compile_s,
-            "versions": _package_versions(),
-            "command": sys.argv,
-            "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-        }
-        tmp = out.staging
-        np.save(tmp / "image.npy", result.image)
-        write_exr(tmp / "image.exr", result.image)
-        write_png(tmp / "image.png", result.image)
-        result.counters.to_csv(tmp / "counters.csv", index=False)
-        result.timing.units.to_csv(tmp / "timing.csv", index=False)
-        result.timing.queues.to_csv(tmp / "queues.csv", index=False)
-        write_json(tmp / "run.json", info)
-        (tmp / "report.md").write_text(markdown_report(result, info, files_dir=tmp / "report_files"))
-        (tmp / "report.html").write_text(html_report(result, info))
+        info = {"compile_time_s": compile_s, "versions": _package_versions(), "command": sys.argv,
+                "date": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+        write_run(out.staging, workload, result, info)
         out.commit()
     if not args.quiet:
         print(summary_text(result, title=f"{args.scene} -> {args.out}"))
@@ -159,13 +128,8 @@ def cmd_run(args) -> int:
 
 
 def cmd_check(args) -> int:
-    from pipeline_sim.preflight import validate_run
-
-    scene, arch = _load_inputs(args)
-    draw = validate_run(scene, [arch], str(args.scene))
-    print(f"{args.scene}: ok: {len(scene.objects)} objects, {draw.n} triangles, "
-          f"{scene.image.width}x{scene.image.height} at {scene.image.spp} spp, "
-          f"motion={draw.has_motion}, lens={draw.has_lens}")
+    workload, _ = _load_inputs(args)
+    print(f"{args.scene}: ok: {workload.check()}")
     return 0
 
 
