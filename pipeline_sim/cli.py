@@ -156,19 +156,24 @@ def cmd_compare(args) -> int:
     from pipeline_sim.compare import ALGORITHMS, format_checks, format_table, parse_algorithms, write_comparison
     from pipeline_sim.config import apply_overrides
     from pipeline_sim.output_folder import OutputFolder
-    from pipeline_sim.preflight import validate_run
 
     algorithms = parse_algorithms(args.algorithms)
-    scene, arch = _load_inputs(args)
+    workload, arch = _load_inputs(args)
     spec = ReferenceSpec(spp=args.reference_spp) if args.reference_spp else None
-    validate_run(scene, [apply_overrides(arch, ALGORITHMS[name]) for name in algorithms], str(args.scene),
-                 reference_spp=spec.spp if spec else None)
+    scene = workload.reference_scene()
+    if spec is not None and scene is None:
+        raise UserError(f"--reference-spp: a workload of kind '{workload.kind}' has no single image to measure "
+                        "against a reference")
+    workload.check([apply_overrides(arch, ALGORITHMS[name]) for name in algorithms],
+                   reference_spp=spec.spp if spec else None)
     with contextlib.ExitStack() as stack:
         out = stack.enter_context(OutputFolder(args.out, "compare", force=args.force)) if args.out else None
-        comp, compile_s = _compare_all(args, scene, arch, algorithms, spec)
-        info = {"scene": str(args.scene), "scene_digest": scene.digest, "image": dataclasses.asdict(scene.image),
-                "arch": arch.to_dict(), "algorithms": algorithms, "compile_time_s": compile_s,
-                "versions": _package_versions()}
+        comp, compile_s = _compare_all(args, workload, arch, algorithms, spec)
+        info = {"scene": str(args.scene), "scene_digest": workload.digest, "kind": workload.kind,
+                "workload": workload.resolved(), "arch": arch.to_dict(), "algorithms": algorithms,
+                "compile_time_s": compile_s, "versions": _package_versions()}
+        if scene is not None:
+            info["image"] = dataclasses.asdict(scene.image)
         if out is not None:
             write_comparison(comp, out, info)
     if not args.quiet:
@@ -184,9 +189,9 @@ def cmd_compare(args) -> int:
     return 0
 
 
-def _compare_all(args, scene, arch, algorithms, spec):
-    """Render ``scene`` with each algorithm (and the reference ``spec``, if any); return the comparison and
-    the kernels' compile time."""
+def _compare_all(args, workload, arch, algorithms, spec):
+    """Run ``workload`` with each algorithm (and render the reference ``spec``, if any); return the
+    comparison and the kernels' compile time."""
     from pipeline_sim.accuracy import reference_image
     from pipeline_sim.compare import compare
     from pipeline_sim.jit import warm_up
@@ -199,8 +204,8 @@ def _compare_all(args, scene, arch, algorithms, spec):
             print(f"  {name}: STE {percent(row['ste'], 2)}, {row['samples_tested']:,} samples tested, "
                   f"{row['frame_cycles']:,.0f} cycles, {row['wall_time_s']:.2f} s", file=sys.stderr)
 
-    reference = reference_image(scene, spec, arch=arch) if spec is not None else None
-    comp = compare(scene, arch, algorithms, progress=progress, reference=reference)
+    reference = reference_image(workload.reference_scene(), spec, arch=arch) if spec is not None else None
+    comp = compare(workload, arch, algorithms, progress=progress, reference=reference)
     return comp, compile_s
 
 
