@@ -175,10 +175,10 @@ def write_run(folder: Path, workload, result, info: dict[str, Any]) -> dict[str,
 
     arch = workload.arch.to_dict()
     states = {p.name: p for p in workload.states}
-    passes = {}
+    passes = []  # in run order (run.json's keys are sorted)
     for name, r in result.passes.items():
         write_pass(folder / "passes" / file_name(name, "pass"), r)
-        passes[name] = pass_record(states[name], r, arch)
+        passes.append(pass_record(states[name], r, arch))
     for name, table in result.tables.items():
         table.to_csv(folder / f"{file_name(name, 'table')}.csv", index=False)
     write_json(folder / "results.json", result.results)

@@ -55,8 +55,8 @@ def test_run_writes_every_output(small_scene, tmp_path, capsys):
     info = json.loads((out / "run.json").read_text())
     for key in ("kind", "workload", "arch", "passes", "versions", "wall_time_s", "frame_cycles", "headline"):
         assert key in info
-    assert info["kind"] == "scene" and list(info["passes"]) == ["main"]
-    state = info["passes"]["main"]
+    assert info["kind"] == "scene" and [p["name"] for p in info["passes"]] == ["main"]
+    (state,) = info["passes"]
     assert state["dimensions"] == {"motion": True, "lens": True}
     assert (state["seed"], state["spp"], state["zcull_refresh"], state["texture"]) == (2, 4, "timed", None)
     assert info["arch"]["tile_traverser"]["tile_size"] == 4 and state["arch_changes"] == {}
@@ -73,7 +73,7 @@ def test_options_override_scene_and_arch(small_scene, tmp_path):
                  "--set", "shading.cache_entries=64", "--quiet"]) == 0
     info = json.loads((out / "run.json").read_text())
     assert info["workload"]["image"]["spp"] == 8 and info["workload"]["scene"]["image"]["seed"] == 9
-    assert (info["passes"]["main"]["spp"], info["passes"]["main"]["seed"]) == (8, 9)
+    assert (info["passes"][0]["spp"], info["passes"][0]["seed"]) == (8, 9)
     assert info["arch"]["tile_traverser"]["tile_size"] == 8
     assert info["arch"]["shading"]["cache_entries"] == 64
 
@@ -215,7 +215,7 @@ def test_out_dot(small_scene, tmp_path):
     assert res.returncode == 0, res.stderr
     res = _cli("run", small_scene, "--out", ".", "-q", "--seed", "5", cwd=work)   # the tool's own: again
     assert res.returncode == 0, res.stderr
-    assert json.loads((work / "run.json").read_text())["passes"]["main"]["seed"] == 5
+    assert json.loads((work / "run.json").read_text())["passes"][0]["seed"] == 5
     assert sorted(p.name for p in tmp_path.iterdir()) == ["small.toml", "work"]   # nothing hidden beside it
     assert not [p for p in work.iterdir() if p.name.startswith(".") and p.name != ".pipeline-sim.json"]
 
@@ -287,7 +287,7 @@ def test_sigkill_while_writing_leaves_the_previous_outputs_and_the_next_run_clea
     res = _cli("run", small_scene, "--out", out, "--seed", "7", "-q")
     assert res.returncode == 0, res.stderr
     assert not list(tmp_path.glob(".out.*"))                        # recognised and removed
-    assert json.loads((out / "run.json").read_text())["passes"]["main"]["seed"] == 7
+    assert json.loads((out / "run.json").read_text())["passes"][0]["seed"] == 7
 
 
 def test_written_files_have_the_umask_modes(small_scene, tmp_path):
