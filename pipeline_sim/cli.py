@@ -222,9 +222,19 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_report(args) -> int:
+    folder = Path(args.sweep_dir)
+    if (folder / "run.json").is_file() and not (folder / "sweep.json").exists():  # a run folder
+        from reports.run_report import build_run_report
+
+        if not args.out:  # its own report.html is the run's, listed in its marker
+            raise UserError(f"{folder}: a run folder has its report (report.html); give -o FILE.html to write "
+                            "it again elsewhere")
+        path = build_run_report(folder, args.out, force=args.force)
+        print(f"report: {path} (Markdown twin: {path.with_suffix('.md')})")
+        return 0
     from reports.sweep_report import build_report
 
-    out = Path(args.out) if args.out else Path(args.sweep_dir) / "report.html"
+    out = Path(args.out) if args.out else folder / "report.html"
     path = build_report(args.sweep_dir, out, metric=args.metric, cost=args.cost, force=args.force)
     print(f"report: {path} (Markdown twin: {path.with_suffix('.md')})")
     return 0
@@ -236,7 +246,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     def scene_args(p, out: bool):
-        p.add_argument("scene", metavar="SCENE.toml", help="scene file (format: docs/scene-format.md)")
+        p.add_argument("scene", metavar="FILE.toml", help="workload file: a scene (format: docs/scene-format.md) "
+                       "or any workload kind (docs/workloads.md)")
         if out:
             p.add_argument("--out", "-o", required=True, metavar="DIR",
                            help="output folder: new, empty, or one pipeline-sim wrote (replaced whole when the run "
@@ -249,19 +260,22 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE",
                        help="override one architecture setting; repeatable")
 
-    run = sub.add_parser("run", help="simulate a scene; write images, counters, timing, run.json and a report",
-                         description="Simulate SCENE.toml and write into DIR: image.npy, image.exr (linear "
+    run = sub.add_parser("run", help="run a workload (a scene: one pass); write images, counters, timing, "
+                         "results, run.json and a report",
+                         description="Run the workload of FILE.toml (a scene, or any kind: docs/workloads.md) and "
+                         "write into DIR, for each pass under passes/<pass>/: image.npy, image.exr (linear "
                          "float RGBA), image.png (8-bit sRGB), counters.csv (one row per unit and counter), "
-                         "timing.csv (busy/starved/blocked cycles per unit), queues.csv, run.json (full "
-                         "configuration, scene digest, versions, seed, wall time) and report.md/report.html. "
-                         "Formats: docs/outputs.md.",
+                         "timing.csv (busy/starved/blocked cycles per unit), queues.csv, trace.json; then "
+                         "results.json (the workload's derived results), run.json (everything resolved: hardware, "
+                         "every pass's state, the workload's content, versions, wall time) and "
+                         "report.md/report.html. Formats: docs/outputs.md.",
                          epilog=_epilog("run"), formatter_class=argparse.RawDescriptionHelpFormatter)
     scene_args(run, out=True)
     run.add_argument("--quiet", "-q", action="store_true", help="print nothing on success")
     run.set_defaults(func=cmd_run)
 
-    check = sub.add_parser("check", help="validate a scene and architecture without simulating",
-                           description="Load and validate SCENE.toml and the architecture, as `run` would before "
+    check = sub.add_parser("check", help="validate a workload and architecture without simulating",
+                           description="Load and validate FILE.toml and the architecture, as `run` would before "
                            "simulating; print a summary.", epilog=_epilog("check"),
                            formatter_class=argparse.RawDescriptionHelpFormatter)
     scene_args(check, out=False)
@@ -276,8 +290,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     from pipeline_sim.compare import ALGORITHMS, DESCRIPTIONS
 
-    comp = sub.add_parser("compare", help="render a scene with each culling algorithm and compare their cost",
-                          description="Render SCENE.toml once per culling algorithm and print (and with --out, "
+    comp = sub.add_parser("compare", help="run a workload with each culling algorithm and compare their cost",
+                          description="Run the workload of FILE.toml once per culling algorithm and print (and with --out, "
                           "save as table.csv, comparison.json, comparison.png and one image per algorithm) tiles "
                           "tested and rejected, samples tested and covered, STE, arithmetic by stage (triangle "
                           "setup, tile test, sample test, interpolation setup), depth-buffer bytes, shader "
@@ -286,7 +300,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "Algorithms: " + "; ".join(f"{k}: {v}" for k, v in DESCRIPTIONS.items()),
                           epilog=_epilog("compare"),
                           formatter_class=argparse.RawDescriptionHelpFormatter)
-    comp.add_argument("scene", metavar="SCENE.toml", help="scene file")
+    comp.add_argument("scene", metavar="FILE.toml", help="workload file (a scene or any kind)")
     comp.add_argument("--algorithms", nargs="+", metavar="NAME", choices=list(ALGORITHMS),
                       help=f"algorithms to compare (default: all of {', '.join(ALGORITHMS)})")
     comp.add_argument("--out", "-o", metavar="DIR",
@@ -327,14 +341,15 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--quiet", "-q", action="store_true", help="no progress output")
     sweep.set_defaults(func=cmd_sweep)
 
-    report = sub.add_parser("report", help="write the HTML (and Markdown) report of a sweep results folder",
+    report = sub.add_parser("report", help="write the HTML (and Markdown) report of a sweep or run folder",
                             description="Build a self-contained HTML report (figures embedded, no network "
-                            "resources) and a Markdown twin from a sweep results folder: error against cost with "
+                            "resources) and a Markdown twin from a run folder (-o required: the run's own report, "
+                            "written again from its files) or from a sweep results folder: error against cost with "
                             "the Pareto frontier, counters, per-unit cycles and bottlenecks, parameters against "
                             "metrics, images with error maps, the pipeline and a timeline of one point.",
                             epilog=_epilog("report"),
                             formatter_class=argparse.RawDescriptionHelpFormatter)
-    report.add_argument("sweep_dir", metavar="DIR", help="a folder written by `pipeline-sim sweep`")
+    report.add_argument("sweep_dir", metavar="DIR", help="a folder written by `pipeline-sim sweep` or `run`")
     report.add_argument("--out", "-o", metavar="FILE.html",
                         help="output file (default: DIR/report.html); FILE.md and the folder FILE_files/ are "
                         "written beside it")

@@ -214,7 +214,7 @@ def html_report(result, run_info: dict) -> str:
         f"{html.escape(caption)}</figcaption></figure>"
         for slug, ftitle, caption, fig in run_figures(result))
     return f"""<!doctype html>
-<html><head><meta charset="utf-8"><title>pipeline-sim: {title}</title>
+<html><head><meta charset="utf-8"><meta name="generator" content="pipeline-sim"><title>pipeline-sim: {title}</title>
 <style>body{{font-family:sans-serif;max-width:60em;margin:2em auto}} td,th{{padding:2px 8px;text-align:right}}
 img.render{{image-rendering:pixelated;max-width:100%}}
 figure{{margin:1em 0}} figure img{{max-width:100%;height:auto}} figcaption{{font-size:.9em;color:#555}}</style></head><body>
@@ -238,3 +238,62 @@ def _has_tabulate() -> bool:
     except ImportError:
         return False
     return True
+
+
+def read_run(folder: str | Path):
+    """A run folder written by ``pipeline-sim run`` read back: its
+    :class:`~pipeline_sim.workload.WorkloadResult` (images, counters, timing and traces of every
+    pass, results and tables) and its run.json. A folder that is not one is a one-line error."""
+    import json
+
+    from pipeline_sim.errors import UserError
+    from pipeline_sim.pipeline import TimingResult
+    from pipeline_sim.render import PassResult
+    from pipeline_sim.workload import WorkloadResult
+
+    folder = Path(folder)
+    try:
+        info = json.loads((folder / "run.json").read_text(encoding="utf-8"))
+        passes = {}
+        for rec in info["passes"]:
+            d = folder / "passes" / rec["name"]
+            trace = json.loads((d / "trace.json").read_text(encoding="utf-8"))
+            timing = TimingResult(
+                trace["frame_cycles"], pd.read_csv(d / "timing.csv"), pd.read_csv(d / "queues.csv"),
+                {u: [tuple(s) for s in states] for u, states in trace["units"].items()},
+                {c: [tuple(s) for s in series] for c, series in trace["queues"].items()})
+            passes[rec["name"]] = PassResult(
+                name=rec["name"], image=np.load(d / "image.npy"), counters=pd.read_csv(d / "counters.csv"),
+                timing=timing, wall_time=rec["wall_time_s"], dimensions=rec["dimensions"],
+                units_used=rec["units_used"], depth=None, samples=None,
+                region_samples_made=rec["screen_regions"]["sample_sets_made"])
+        results = json.loads((folder / "results.json").read_text(encoding="utf-8"))
+        tables = {Path(name).stem: pd.read_csv(folder / name) for name in info["tables"]}
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise UserError(f"{folder}: not a run folder written by this version of pipeline-sim run "
+                        f"({type(exc).__name__}: {exc})") from None
+    return WorkloadResult(passes, results, tables), info
+
+
+def build_run_report(run_dir: str | Path, out_html: str | Path, *, force: bool = False) -> Path:
+    """The report of the run folder ``run_dir`` written again, as ``out_html``, its Markdown twin
+    and the twin's figures in ``<out_html stem>_files/`` (refused where they exist and were not
+    written by this tool, unless ``force``); return the HTML path."""
+    import re
+
+    from pipeline_sim.output_folder import OutputFolder, check_output_file
+    from reports.sweep_report import HTML_SIGNATURES
+
+    result, info = read_run(run_dir)
+    out_html = Path(out_html)
+    out_md = out_html.with_suffix(".md")
+    check_output_file(out_html, HTML_SIGNATURES, force=force, option="-o")
+    check_output_file(out_md, (re.compile(r"# pipeline-sim (run|sweep): [^\n]*\n"),), force=force, option="-o")
+    with OutputFolder(out_html.parent / f"{out_html.stem}_files", "report figures", force=force,
+                      option="-o") as figures:
+        markdown = markdown_report(result, info, files_dir=figures.staging)
+        figures.commit()
+    atomic_write_bytes(out_md, markdown.replace(f"]({figures.staging.name}/", f"]({out_html.stem}_files/")
+                       .encode("utf-8"))
+    atomic_write_bytes(out_html, html_report(result, info).encode("utf-8"))
+    return out_html

@@ -164,3 +164,24 @@ def test_pass_names_must_name_files(tmp_path):
     for bad in ("", "..", "a/b", ".hidden", "x y"):
         with pytest.raises(UserError, match="cannot name a file"):
             file_name(bad, "pass")
+
+
+def test_report_reads_a_run_folder(negative, tmp_path, capsys):
+    """`report` of a run folder writes its report again from the files alone: the same Markdown
+    (figures aside), the same pass images embedded."""
+    out = tmp_path / "run"
+    assert main(["run", str(negative), "--out", str(out), "--quiet"]) == 0
+    assert main(["report", str(out)]) == 2
+    assert "give -o FILE.html" in capsys.readouterr().err
+    again = tmp_path / "again.html"
+    assert main(["report", str(out), "-o", str(again)]) == 0
+    figures = sorted(p.name for p in (tmp_path / "again_files").glob("*.png"))
+    assert figures == sorted(p.name for p in (out / "report_files").iterdir()) and len(figures) == 6
+    body = lambda text: [ln for ln in text.splitlines() if "wall" not in ln and "_files/" not in ln]  # noqa: E731
+    assert body(again.with_suffix(".md").read_text()) == body((out / "report.md").read_text())
+    assert "data:image/png;base64," in again.read_text()
+    # run again (the report beside it is the tool's own) and refused where a file is the user's
+    assert main(["report", str(out), "-o", str(again)]) == 0
+    mine = tmp_path / "mine.html"
+    mine.write_text("my notes")
+    assert main(["report", str(out), "-o", str(mine)]) == 2 and mine.read_text() == "my notes"
