@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 ## demo: set up, then simulate the default motion blur + depth of field workload into runs/default
 demo: $(STAMP)
 	$(VENV)/bin/pipeline-sim run workloads/scenes/default.toml --out runs/default
-	@echo "image: runs/default/image.png  counters: runs/default/counters.csv  report: runs/default/report.html"
+	@echo "image: runs/default/passes/main/image.png  counters: runs/default/passes/main/counters.csv  report: runs/default/report.html"
 
 ## test: set up, then run the test suite
 test: $(STAMP)

@@ -69,21 +69,20 @@ def _package_versions() -> dict[str, str]:
 
 
 def _load_inputs(args):
+    """The workload file of ``args.scene`` with ``--spp``/``--seed``, on the architecture of
+    ``--arch``/``--set``/``--tile``."""
     from pipeline_sim.config import load_arch
-    from pipeline_sim.scene import check_image_value, load_scene
+    from pipeline_sim.scene import check_image_value
+    from pipeline_sim.workload import read_workload
 
-    scene = load_scene(args.scene)
-    image = scene.image
-    if args.spp is not None:
-        image = dataclasses.replace(image, spp=check_image_value("spp", args.spp, "--spp"))
-    if args.seed is not None:
-        image = dataclasses.replace(image, seed=check_image_value("seed", args.seed, "--seed"))
-    scene = scene.replace(image=image)
+    cls, data = read_workload(args.scene)
+    image = {name: check_image_value(name, value, f"--{name}")
+             for name, value in (("spp", args.spp), ("seed", args.seed)) if value is not None}
     overrides = list(args.set or [])
     if args.tile is not None:
         overrides.append(f"tile_traverser.tile_size={args.tile}")
     arch = load_arch(args.arch, overrides)
-    return scene, arch
+    return cls.load(Path(args.scene), data, arch, image), arch
 
 
 def _progress_bar(quiet: bool):
@@ -102,18 +101,13 @@ def _progress_bar(quiet: bool):
 
 
 def cmd_run(args) -> int:
-    from pipeline_sim.preflight import validate_run
-
-    scene, arch = _load_inputs(args)
-    draw = validate_run(scene, [arch], str(args.scene))  # all of it before a kernel module is imported
-
-    import numpy as np
+    workload, arch = _load_inputs(args)
+    workload.check()  # all of it before a kernel module is imported
 
     from pipeline_sim.jit import warm_up
-    from pipeline_sim.output import write_exr, write_json, write_png
+    from pipeline_sim.output import write_run
     from pipeline_sim.output_folder import OutputFolder
-    from pipeline_sim.render import render_scene
-    from reports.run_report import headline, html_report, markdown_report, summary_text
+    from reports.run_report import summary_text
 
     with OutputFolder(args.out, "run", force=args.force) as out:
         compile_s = warm_up()
@@ -121,37 +115,12 @@ def cmd_run(args) -> int:
             print(f"numba kernels ready in {compile_s:.2f} s (compiled on first use, then loaded from cache)")
         update, close = _progress_bar(args.quiet)
         try:
-            result = render_scene(scene, arch, progress=update, draw=draw)
+            result = workload.run(progress=update)
         finally:
             close()
-        info = {
-            "scene": str(args.scene),
-            "scene_digest": scene.digest,
-            "image": dataclasses.asdict(scene.image),
-            "seed": scene.image.seed,
-            "arch": arch.to_dict(),
-            "dimensions": result.dimensions,
-            "units_used": result.units_used,
-            "bypassed": [u for u in ("zcull", "sample_tester") if u not in result.units_used],
-            "screen_regions": result.region_info,
-            "frame_cycles": result.timing.frame_cycles,
-            "headline": headline(result),
-            "wall_time_s": result.wall_time,
-            "compile_time_s": compile_s,
-            "versions": _package_versions(),
-            "command": sys.argv,
-            "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-        }
-        tmp = out.staging
-        np.save(tmp / "image.npy", result.image)
-        write_exr(tmp / "image.exr", result.image)
-        write_png(tmp / "image.png", result.image)
-        result.counters.to_csv(tmp / "counters.csv", index=False)
-        result.timing.units.to_csv(tmp / "timing.csv", index=False)
-        result.timing.queues.to_csv(tmp / "queues.csv", index=False)
-        write_json(tmp / "run.json", info)
-        (tmp / "report.md").write_text(markdown_report(result, info, files_dir=tmp / "report_files"))
-        (tmp / "report.html").write_text(html_report(result, info))
+        info = {"compile_time_s": compile_s, "versions": _package_versions(), "command": sys.argv,
+                "date": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+        write_run(out.staging, workload, result, info)
         out.commit()
     if not args.quiet:
         print(summary_text(result, title=f"{args.scene} -> {args.out}"))
@@ -159,13 +128,8 @@ def cmd_run(args) -> int:
 
 
 def cmd_check(args) -> int:
-    from pipeline_sim.preflight import validate_run
-
-    scene, arch = _load_inputs(args)
-    draw = validate_run(scene, [arch], str(args.scene))
-    print(f"{args.scene}: ok: {len(scene.objects)} objects, {draw.n} triangles, "
-          f"{scene.image.width}x{scene.image.height} at {scene.image.spp} spp, "
-          f"motion={draw.has_motion}, lens={draw.has_lens}")
+    workload, _ = _load_inputs(args)
+    print(f"{args.scene}: ok: {workload.check()}")
     return 0
 
 
@@ -192,19 +156,24 @@ def cmd_compare(args) -> int:
     from pipeline_sim.compare import ALGORITHMS, format_checks, format_table, parse_algorithms, write_comparison
     from pipeline_sim.config import apply_overrides
     from pipeline_sim.output_folder import OutputFolder
-    from pipeline_sim.preflight import validate_run
 
     algorithms = parse_algorithms(args.algorithms)
-    scene, arch = _load_inputs(args)
+    workload, arch = _load_inputs(args)
     spec = ReferenceSpec(spp=args.reference_spp) if args.reference_spp else None
-    validate_run(scene, [apply_overrides(arch, ALGORITHMS[name]) for name in algorithms], str(args.scene),
-                 reference_spp=spec.spp if spec else None)
+    scene = workload.reference_scene()
+    if spec is not None and scene is None:
+        raise UserError(f"--reference-spp: a workload of kind '{workload.kind}' has no single image to measure "
+                        "against a reference")
+    workload.check([apply_overrides(arch, ALGORITHMS[name]) for name in algorithms],
+                   reference_spp=spec.spp if spec else None)
     with contextlib.ExitStack() as stack:
         out = stack.enter_context(OutputFolder(args.out, "compare", force=args.force)) if args.out else None
-        comp, compile_s = _compare_all(args, scene, arch, algorithms, spec)
-        info = {"scene": str(args.scene), "scene_digest": scene.digest, "image": dataclasses.asdict(scene.image),
-                "arch": arch.to_dict(), "algorithms": algorithms, "compile_time_s": compile_s,
-                "versions": _package_versions()}
+        comp, compile_s = _compare_all(args, workload, arch, algorithms, spec)
+        info = {"scene": str(args.scene), "scene_digest": workload.digest, "kind": workload.kind,
+                "workload": workload.resolved(), "arch": arch.to_dict(), "algorithms": algorithms,
+                "compile_time_s": compile_s, "versions": _package_versions()}
+        if scene is not None:
+            info["image"] = dataclasses.asdict(scene.image)
         if out is not None:
             write_comparison(comp, out, info)
     if not args.quiet:
@@ -220,9 +189,9 @@ def cmd_compare(args) -> int:
     return 0
 
 
-def _compare_all(args, scene, arch, algorithms, spec):
-    """Render ``scene`` with each algorithm (and the reference ``spec``, if any); return the comparison and
-    the kernels' compile time."""
+def _compare_all(args, workload, arch, algorithms, spec):
+    """Run ``workload`` with each algorithm (and render the reference ``spec``, if any); return the
+    comparison and the kernels' compile time."""
     from pipeline_sim.accuracy import reference_image
     from pipeline_sim.compare import compare
     from pipeline_sim.jit import warm_up
@@ -235,8 +204,8 @@ def _compare_all(args, scene, arch, algorithms, spec):
             print(f"  {name}: STE {percent(row['ste'], 2)}, {row['samples_tested']:,} samples tested, "
                   f"{row['frame_cycles']:,.0f} cycles, {row['wall_time_s']:.2f} s", file=sys.stderr)
 
-    reference = reference_image(scene, spec, arch=arch) if spec is not None else None
-    comp = compare(scene, arch, algorithms, progress=progress, reference=reference)
+    reference = reference_image(workload.reference_scene(), spec, arch=arch) if spec is not None else None
+    comp = compare(workload, arch, algorithms, progress=progress, reference=reference)
     return comp, compile_s
 
 
@@ -253,9 +222,19 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_report(args) -> int:
+    folder = Path(args.sweep_dir)
+    if (folder / "run.json").is_file() and not (folder / "sweep.json").exists():  # a run folder
+        from reports.run_report import build_run_report
+
+        if not args.out:  # its own report.html is the run's, listed in its marker
+            raise UserError(f"{folder}: a run folder has its report (report.html); give -o FILE.html to write "
+                            "it again elsewhere")
+        path = build_run_report(folder, args.out, force=args.force)
+        print(f"report: {path} (Markdown twin: {path.with_suffix('.md')})")
+        return 0
     from reports.sweep_report import build_report
 
-    out = Path(args.out) if args.out else Path(args.sweep_dir) / "report.html"
+    out = Path(args.out) if args.out else folder / "report.html"
     path = build_report(args.sweep_dir, out, metric=args.metric, cost=args.cost, force=args.force)
     print(f"report: {path} (Markdown twin: {path.with_suffix('.md')})")
     return 0
@@ -267,7 +246,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     def scene_args(p, out: bool):
-        p.add_argument("scene", metavar="SCENE.toml", help="scene file (format: docs/scene-format.md)")
+        p.add_argument("scene", metavar="FILE.toml", help="workload file: a scene (format: docs/scene-format.md) "
+                       "or any workload kind (docs/workloads.md)")
         if out:
             p.add_argument("--out", "-o", required=True, metavar="DIR",
                            help="output folder: new, empty, or one pipeline-sim wrote (replaced whole when the run "
@@ -280,19 +260,22 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE",
                        help="override one architecture setting; repeatable")
 
-    run = sub.add_parser("run", help="simulate a scene; write images, counters, timing, run.json and a report",
-                         description="Simulate SCENE.toml and write into DIR: image.npy, image.exr (linear "
+    run = sub.add_parser("run", help="run a workload (a scene: one pass); write images, counters, timing, "
+                         "results, run.json and a report",
+                         description="Run the workload of FILE.toml (a scene, or any kind: docs/workloads.md) and "
+                         "write into DIR, for each pass under passes/<pass>/: image.npy, image.exr (linear "
                          "float RGBA), image.png (8-bit sRGB), counters.csv (one row per unit and counter), "
-                         "timing.csv (busy/starved/blocked cycles per unit), queues.csv, run.json (full "
-                         "configuration, scene digest, versions, seed, wall time) and report.md/report.html. "
-                         "Formats: docs/outputs.md.",
+                         "timing.csv (busy/starved/blocked cycles per unit), queues.csv, trace.json; then "
+                         "results.json (the workload's derived results), run.json (everything resolved: hardware, "
+                         "every pass's state, the workload's content, versions, wall time) and "
+                         "report.md/report.html. Formats: docs/outputs.md.",
                          epilog=_epilog("run"), formatter_class=argparse.RawDescriptionHelpFormatter)
     scene_args(run, out=True)
     run.add_argument("--quiet", "-q", action="store_true", help="print nothing on success")
     run.set_defaults(func=cmd_run)
 
-    check = sub.add_parser("check", help="validate a scene and architecture without simulating",
-                           description="Load and validate SCENE.toml and the architecture, as `run` would before "
+    check = sub.add_parser("check", help="validate a workload and architecture without simulating",
+                           description="Load and validate FILE.toml and the architecture, as `run` would before "
                            "simulating; print a summary.", epilog=_epilog("check"),
                            formatter_class=argparse.RawDescriptionHelpFormatter)
     scene_args(check, out=False)
@@ -307,8 +290,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     from pipeline_sim.compare import ALGORITHMS, DESCRIPTIONS
 
-    comp = sub.add_parser("compare", help="render a scene with each culling algorithm and compare their cost",
-                          description="Render SCENE.toml once per culling algorithm and print (and with --out, "
+    comp = sub.add_parser("compare", help="run a workload with each culling algorithm and compare their cost",
+                          description="Run the workload of FILE.toml once per culling algorithm and print (and with --out, "
                           "save as table.csv, comparison.json, comparison.png and one image per algorithm) tiles "
                           "tested and rejected, samples tested and covered, STE, arithmetic by stage (triangle "
                           "setup, tile test, sample test, interpolation setup), depth-buffer bytes, shader "
@@ -317,7 +300,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "Algorithms: " + "; ".join(f"{k}: {v}" for k, v in DESCRIPTIONS.items()),
                           epilog=_epilog("compare"),
                           formatter_class=argparse.RawDescriptionHelpFormatter)
-    comp.add_argument("scene", metavar="SCENE.toml", help="scene file")
+    comp.add_argument("scene", metavar="FILE.toml", help="workload file (a scene or any kind)")
     comp.add_argument("--algorithms", nargs="+", metavar="NAME", choices=list(ALGORITHMS),
                       help=f"algorithms to compare (default: all of {', '.join(ALGORITHMS)})")
     comp.add_argument("--out", "-o", metavar="DIR",
@@ -358,14 +341,15 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--quiet", "-q", action="store_true", help="no progress output")
     sweep.set_defaults(func=cmd_sweep)
 
-    report = sub.add_parser("report", help="write the HTML (and Markdown) report of a sweep results folder",
+    report = sub.add_parser("report", help="write the HTML (and Markdown) report of a sweep or run folder",
                             description="Build a self-contained HTML report (figures embedded, no network "
-                            "resources) and a Markdown twin from a sweep results folder: error against cost with "
+                            "resources) and a Markdown twin from a run folder (-o required: the run's own report, "
+                            "written again from its files) or from a sweep results folder: error against cost with "
                             "the Pareto frontier, counters, per-unit cycles and bottlenecks, parameters against "
                             "metrics, images with error maps, the pipeline and a timeline of one point.",
                             epilog=_epilog("report"),
                             formatter_class=argparse.RawDescriptionHelpFormatter)
-    report.add_argument("sweep_dir", metavar="DIR", help="a folder written by `pipeline-sim sweep`")
+    report.add_argument("sweep_dir", metavar="DIR", help="a folder written by `pipeline-sim sweep` or `run`")
     report.add_argument("--out", "-o", metavar="FILE.html",
                         help="output file (default: DIR/report.html); FILE.md and the folder FILE_files/ are "
                         "written beside it")

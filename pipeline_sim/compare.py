@@ -1,6 +1,6 @@
-"""Comparing the culling algorithms on one scene, in the papers' own terms.
+"""Comparing the culling algorithms on one workload, in the papers' own terms.
 
-Renders a scene once per algorithm and tabulates what Wu13 and Munkberg11 compare:
+Runs a workload (a scene: its one pass) once per algorithm and tabulates what Wu13 and Munkberg11 compare:
 tiles tested and rejected, samples tested and covered, sample test
 efficiency (STE, Wu13 §1.1), arithmetic by stage (triangle setup, tile test,
 sample test, interpolation setup; Munkberg11 §8 and Fig. 15), depth-buffer bytes,
@@ -168,37 +168,46 @@ def _accuracy_settings(arch: ArchConfig) -> tuple:
     return tuple(sorted(settings_of(arch, (ACCURACY,)).items()))
 
 
-def compare(scene, arch: ArchConfig, algorithms: list[str], progress=None,
+def compare(workload, arch: ArchConfig, algorithms: list[str], progress=None,
             reference: np.ndarray | None = None, zcull_refresh: str = "ordered") -> Comparison:
-    """Render ``scene`` with each algorithm; tabulate and check the images are identical.
+    """Run ``workload`` (a :class:`~pipeline_sim.workload.Workload`, or a scene: its one standard
+    pass) with each algorithm; tabulate and check the images are identical.
 
     A culling algorithm may change only settings declared not to change
     the image (``counters``, ``cycles``) and those declared to trade
     accuracy (the sample set); algorithms whose ``accuracy`` settings agree
-    must give the same image: those on the continuous samples the first
-    one's, those on Interleave UVT's discrete sample set the first of
-    theirs. Each row's image error (RMSE, PSNR) is measured against
-    ``reference`` if given, else against the first image whose accuracy
-    settings are those of ``arch`` itself, else the first image.
-    ``zcull_refresh``: when z-cull sees the ROP's refreshes
+    must give the same images, every pass's: those on the continuous samples
+    the first one's, those on Interleave UVT's discrete sample set the first
+    of theirs. A row holds the workload's totals over its passes; its image
+    error (RMSE, PSNR) is the final pass's image measured against
+    ``reference`` if given, else against the first final image whose accuracy
+    settings are those of ``arch`` itself, else the first one.
+    ``zcull_refresh``: when z-cull sees the ROP's refreshes, set on every pass
     (``pipeline_sim.render.ZCULL_REFRESH``); "ordered" (the default) makes
     every counter independent of timing, "timed" is the hardware-like order
     of ``pipeline-sim run``.
     """
     from pipeline_sim.accuracy import error_metrics
-    from pipeline_sim.render import render_scene
+    from pipeline_sim.workload import SceneWorkload, Workload
 
-    rows, images, groups = [], {}, {}
+    if not isinstance(workload, Workload):
+        workload = SceneWorkload.of_scene(workload, arch)
+    rows, images, passes, groups = [], {}, {}, {}
     for name in algorithms:
         arch_n = apply_overrides(arch, ALGORITHMS[name])
         groups.setdefault(_accuracy_settings(arch_n), []).append(name)
-        result = render_scene(scene, arch_n, zcull_refresh=zcull_refresh)
+        run = workload.on(arch_n)
+        run.pass_options["zcull_refresh"] = zcull_refresh
+        out = run.run()
+        result = out.total()
         dimensions = result.dimensions
         rows.append(_row(name, result))
         images[name] = result.image
+        passes[name] = [r.image for r in out.passes.values()]
         if progress is not None:
             progress(name, rows[-1])
-    differing = [n for group in groups.values() for n in group[1:] if not np.array_equal(images[n], images[group[0]])]
+    differing = [n for group in groups.values() for n in group[1:]
+                 if not all(np.array_equal(a, b) for a, b in zip(passes[n], passes[group[0]], strict=True))]
     table = pd.DataFrame(rows)
     own = groups.get(_accuracy_settings(arch), algorithms)
     against = reference if reference is not None else images[own[0]]

@@ -10,13 +10,16 @@ from __future__ import annotations
 import io
 import json
 import os
+import re
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import OpenEXR
 from PIL import Image
 
+from pipeline_sim.errors import UserError
 from pipeline_sim.output_folder import hold_lock, ordinary_mode, staging_prefix
 
 
@@ -115,3 +118,76 @@ def atomic_save_npy(path: Path, array: np.ndarray) -> None:
     buf = io.BytesIO()
     np.save(buf, array, allow_pickle=False)
     atomic_write_bytes(path, buf.getvalue())
+
+
+#: A pass or table name as it may name a file or folder of the run folder.
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]*")
+
+
+def file_name(name: str, what: str) -> str:
+    """``name`` (of a pass or a table) as a file or folder name, or a one-line error."""
+    if not _NAME.fullmatch(name):
+        raise UserError(f"{what} name '{name}' cannot name a file: use letters, digits and _ . + - "
+                        "(not first)")
+    return name
+
+
+def write_pass(folder: Path, result) -> None:
+    """One pass's outputs into ``folder``: image.npy, image.exr, image.png, counters.csv,
+    timing.csv, queues.csv and trace.json (docs/outputs.md)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    np.save(folder / "image.npy", result.image)
+    write_exr(folder / "image.exr", result.image)
+    write_png(folder / "image.png", result.image)
+    result.counters.to_csv(folder / "counters.csv", index=False)
+    result.timing.units.to_csv(folder / "timing.csv", index=False)
+    result.timing.queues.to_csv(folder / "queues.csv", index=False)
+    trace = {"units": result.timing.traces, "queues": result.timing.queue_series,
+             "frame_cycles": result.timing.frame_cycles}
+    (folder / "trace.json").write_text(json.dumps(trace, separators=(",", ":"), default=_json_default,
+                                                  allow_nan=False) + "\n")
+
+
+def _changes(base: dict, other: dict) -> dict[str, Any]:
+    """The settings of the architecture ``other`` that differ from ``base``, as dotted paths."""
+    return {f"{section}.{key}": value for section, keys in other.items() for key, value in keys.items()
+            if base.get(section, {}).get(key) != value}
+
+
+def pass_record(p, result, arch: dict) -> dict[str, Any]:
+    """run.json's record of one pass: its state as it ran, the architecture settings it changed
+    from the workload's, and what it did."""
+    from pipeline_sim.workload import pass_state
+    from reports.run_report import headline
+
+    return {**pass_state(p), "arch_changes": _changes(arch, p.arch.to_dict()), "dimensions": result.dimensions,
+            "units_used": result.units_used,
+            "bypassed": [u for u in ("zcull", "sample_tester") if u not in result.units_used],
+            "screen_regions": result.region_info, "frame_cycles": result.timing.frame_cycles,
+            "headline": headline(result), "wall_time_s": result.wall_time}
+
+
+def write_run(folder: Path, workload, result, info: dict[str, Any]) -> dict[str, Any]:
+    """A workload's run folder (docs/outputs.md) into ``folder`` (an output folder's staging):
+    ``passes/<pass>/`` for every pass, ``results.json`` and one CSV per table, ``run.json``
+    (everything resolved, plus ``info``) and the report. Returns run.json's content."""
+    from reports.run_report import headline, html_report, markdown_report
+
+    arch = workload.arch.to_dict()
+    states = {p.name: p for p in workload.states}
+    passes = []  # in run order (run.json's keys are sorted)
+    for name, r in result.passes.items():
+        write_pass(folder / "passes" / file_name(name, "pass"), r)
+        passes.append(pass_record(states[name], r, arch))
+    for name, table in result.tables.items():
+        table.to_csv(folder / f"{file_name(name, 'table')}.csv", index=False)
+    write_json(folder / "results.json", result.results)
+    total = result.total()
+    run_info = {"kind": workload.kind, "workload": {**workload.resolved(), "digest": workload.digest},
+                "arch": arch, "passes": passes, "results": sorted(result.results),
+                "tables": [f"{name}.csv" for name in result.tables], "frame_cycles": total.timing.frame_cycles,
+                "headline": headline(total), "wall_time_s": total.wall_time, **info}
+    write_json(folder / "run.json", run_info)
+    (folder / "report.md").write_text(markdown_report(result, run_info, files_dir=folder / "report_files"))
+    (folder / "report.html").write_text(html_report(result, run_info))
+    return run_info

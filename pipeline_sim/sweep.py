@@ -507,27 +507,28 @@ def _run_point(spec: dict[str, Any], params: dict[str, Any], out: Path,
     from pipeline_sim.cli import _package_versions
     from pipeline_sim.config import load_arch
     from pipeline_sim.jit import warm_up
-    from pipeline_sim.output import finite_or_none, write_json, write_png
-    from pipeline_sim.render import render_scene
-    from pipeline_sim.scene import load_scene
+    from pipeline_sim.output import file_name, finite_or_none, write_json, write_pass, write_png
+    from pipeline_sim.workload import load_workload
 
     compile_s = warm_up()
-    scene = load_scene(spec["scene"])
     image_params, overrides = _split_params(params)
-    if image_params:
-        scene = scene.replace(image=dataclasses.replace(scene.image, **image_params))
     overrides = list(spec["set"]) + overrides
     arch = load_arch(spec["arch"], overrides)
-    result = render_scene(scene, arch)
+    workload = load_workload(spec["scene"], arch, image_params)
+    run = workload.run()
+    result = run.total()
 
+    # a workload with one image to measure (a scene) is measured against its reference
+    scene = workload.reference_scene()
     t0 = time.perf_counter()
-    ref_spec = ReferenceSpec(**spec["reference"])
-    reference = reference_image(scene, ref_spec, cache_dir=out / "reference", arch=arch)
+    if scene is not None:
+        ref_spec = ReferenceSpec(**spec["reference"])
+        reference = reference_image(scene, ref_spec, cache_dir=out / "reference", arch=arch)
     t1 = time.perf_counter()
-    all_metrics = error_metrics(result.image, reference)
+    all_metrics = error_metrics(result.image, reference) if scene is not None else {}
     # an image identical to its reference has an infinite PSNR: null in the records
-    metrics = {k: finite_or_none(all_metrics[k]) for k in spec["metrics"]}
-    emap = error_map(result.image, reference)
+    metrics = {k: finite_or_none(all_metrics.get(k)) for k in spec["metrics"]}
+    emap = error_map(result.image, reference) if scene is not None else None
     t2 = time.perf_counter()
 
     summary = {"point_id": pid, "status": "ok", **params, **_summarize(result, metrics)}
@@ -536,9 +537,10 @@ def _run_point(spec: dict[str, Any], params: dict[str, Any], out: Path,
         "params": params,
         "sweep": spec["sweep"],
         "scene": spec["scene"],
-        "scene_digest": scene.digest,
-        "image": dataclasses.asdict(scene.image),
-        "seed": scene.image.seed,
+        "scene_digest": workload.digest,
+        "kind": workload.kind,
+        "workload": workload.resolved(),
+        **({"image": dataclasses.asdict(scene.image), "seed": scene.image.seed} if scene is not None else {}),
         "arch_file": spec["arch"],
         "set": overrides,
         "arch": arch.to_dict(),
@@ -564,13 +566,20 @@ def _run_point(spec: dict[str, Any], params: dict[str, Any], out: Path,
     with OutputFolder(out / "points" / pid, "sweep point", force=True) as folder:
         tmp = folder.staging
         np.save(tmp / "image.npy", result.image)
-        np.save(tmp / "error_map.npy", np.asarray(emap, dtype=np.float32))
+        if emap is not None:
+            np.save(tmp / "error_map.npy", np.asarray(emap, dtype=np.float32))
         write_png(tmp / "image.png", result.image)
         result.counters.to_csv(tmp / "counters.csv", index=False)
         result.timing.units.to_csv(tmp / "timing.csv", index=False)
         result.timing.queues.to_csv(tmp / "queues.csv", index=False)
         (tmp / "trace.json").write_text(_json_text(trace, indent=None))
         write_json(tmp / "run.json", info)
+        if len(run.passes) > 1 or run.results or run.tables:  # a workload of several passes or with results
+            for name, r in run.passes.items():
+                write_pass(tmp / "passes" / file_name(name, "pass"), r)
+            write_json(tmp / "results.json", run.results)
+            for name, table in run.tables.items():
+                table.to_csv(tmp / f"{file_name(name, 'table')}.csv", index=False)
         folder.commit()
     c = result.counters
     counters = [[str(u), str(n), int(v)] for u, n, v in zip(c.unit, c.counter, c.value)]

@@ -32,15 +32,20 @@ def small_scene(tmp_path):
 def test_run_writes_every_output(small_scene, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["run", str(small_scene), "--out", str(out)]) == 0
-    names = {p.name for p in out.iterdir()}
-    assert {"image.npy", "image.exr", "image.png", "counters.csv", "timing.csv", "queues.csv", "run.json",
-            "report.md", "report.html"} <= names
-    img = np.load(out / "image.npy")
+    # a scene is the workload kind "scene": its one pass, "main", under passes/
+    assert {p.name for p in out.iterdir()} == {"passes", "results.json", "run.json", "report.md", "report.html",
+                                               "report_files", ".pipeline-sim.json"}
+    main_pass = out / "passes" / "main"
+    assert [p.name for p in (out / "passes").iterdir()] == ["main"]
+    assert {p.name for p in main_pass.iterdir()} == {"image.npy", "image.exr", "image.png", "counters.csv",
+                                                     "timing.csv", "queues.csv", "trace.json"}
+    assert json.loads((out / "results.json").read_text()) == {}
+    img = np.load(main_pass / "image.npy")
     assert img.shape == (32, 48, 4) and img.dtype == np.float32
-    np.testing.assert_array_equal(read_exr(out / "image.exr"), img)
-    png = np.asarray(Image.open(out / "image.png"))
+    np.testing.assert_array_equal(read_exr(main_pass / "image.exr"), img)
+    png = np.asarray(Image.open(main_pass / "image.png"))
     np.testing.assert_array_equal(png, linear_to_srgb8(img))
-    counters = pd.read_csv(out / "counters.csv")
+    counters = pd.read_csv(main_pass / "counters.csv")
     assert list(counters.columns) == ["unit", "counter", "value", "timing_dependent"]
     dependent = counters.set_index(["unit", "counter"]).timing_dependent
     assert dependent.dtype == bool and not dependent["triangle_setup"].any()
@@ -48,10 +53,13 @@ def test_run_writes_every_output(small_scene, tmp_path, capsys):
     assert set(counters.unit) == {"triangle_setup", "tile_traverser", "tile_test", "zcull", "sample_tester",
                                   "shading", "rop"}
     info = json.loads((out / "run.json").read_text())
-    for key in ("arch", "scene_digest", "versions", "seed", "wall_time_s", "frame_cycles", "dimensions"):
+    for key in ("kind", "workload", "arch", "passes", "versions", "wall_time_s", "frame_cycles", "headline"):
         assert key in info
-    assert info["dimensions"] == {"motion": True, "lens": True}
-    assert info["arch"]["tile_traverser"]["tile_size"] == 4
+    assert info["kind"] == "scene" and [p["name"] for p in info["passes"]] == ["main"]
+    (state,) = info["passes"]
+    assert state["dimensions"] == {"motion": True, "lens": True}
+    assert (state["seed"], state["spp"], state["zcull_refresh"], state["texture"]) == (2, 4, "timed", None)
+    assert info["arch"]["tile_traverser"]["tile_size"] == 4 and state["arch_changes"] == {}
     text = capsys.readouterr().out
     assert "STE" in text and "frame cycles" in text and "numba kernels ready" in text
     # the html report is self-contained
@@ -64,7 +72,8 @@ def test_options_override_scene_and_arch(small_scene, tmp_path):
     assert main(["run", str(small_scene), "--out", str(out), "--spp", "8", "--tile", "8", "--seed", "9",
                  "--set", "shading.cache_entries=64", "--quiet"]) == 0
     info = json.loads((out / "run.json").read_text())
-    assert info["image"]["spp"] == 8 and info["seed"] == 9
+    assert info["workload"]["image"]["spp"] == 8 and info["workload"]["scene"]["image"]["seed"] == 9
+    assert (info["passes"][0]["spp"], info["passes"][0]["seed"]) == (8, 9)
     assert info["arch"]["tile_traverser"]["tile_size"] == 8
     assert info["arch"]["shading"]["cache_entries"] == 64
 
@@ -191,7 +200,7 @@ def test_out_a_folder_with_other_files_is_refused_unless_forced(small_scene, tmp
     assert _tree(tmp_path) == before
     res = _cli("run", small_scene, "--out", d, "-q", "--force")
     assert res.returncode == 0, res.stderr
-    assert (d / "thesis.txt").read_text() == "years of work" and (d / "image.npy").is_file()
+    assert (d / "thesis.txt").read_text() == "years of work" and (d / "passes/main/image.npy").is_file()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mydir", "small.toml"]
 
 
@@ -206,7 +215,7 @@ def test_out_dot(small_scene, tmp_path):
     assert res.returncode == 0, res.stderr
     res = _cli("run", small_scene, "--out", ".", "-q", "--seed", "5", cwd=work)   # the tool's own: again
     assert res.returncode == 0, res.stderr
-    assert json.loads((work / "run.json").read_text())["seed"] == 5
+    assert json.loads((work / "run.json").read_text())["passes"][0]["seed"] == 5
     assert sorted(p.name for p in tmp_path.iterdir()) == ["small.toml", "work"]   # nothing hidden beside it
     assert not [p for p in work.iterdir() if p.name.startswith(".") and p.name != ".pipeline-sim.json"]
 
@@ -259,7 +268,7 @@ def test_sigkill_while_writing_leaves_the_previous_outputs_and_the_next_run_clea
                                  "--seed", "7", "-q"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         deadline = time.monotonic() + 120
         while proc.poll() is None and time.monotonic() < deadline:
-            staging = [p for p in tmp_path.glob(".out.pipeline-sim-*.tmp") if (p / "image.npy").exists()]
+            staging = [p for p in tmp_path.glob(".out.pipeline-sim-*.tmp") if (p / "run.json").exists()]
             if staging:
                 proc.send_signal(signal.SIGKILL)
                 proc.wait()
@@ -278,7 +287,7 @@ def test_sigkill_while_writing_leaves_the_previous_outputs_and_the_next_run_clea
     res = _cli("run", small_scene, "--out", out, "--seed", "7", "-q")
     assert res.returncode == 0, res.stderr
     assert not list(tmp_path.glob(".out.*"))                        # recognised and removed
-    assert json.loads((out / "run.json").read_text())["seed"] == 7
+    assert json.loads((out / "run.json").read_text())["passes"][0]["seed"] == 7
 
 
 def test_written_files_have_the_umask_modes(small_scene, tmp_path):
@@ -288,7 +297,8 @@ def test_written_files_have_the_umask_modes(small_scene, tmp_path):
     assert mode(out) == 0o755 and mode(out / "report_files") == 0o755
     figures = list((out / "report_files").glob("*.png"))
     assert figures
-    for f in [*figures, out / "image.npy", out / "run.json", out / "report.html"]:
+    assert mode(out / "passes") == 0o755 and mode(out / "passes/main") == 0o755
+    for f in [*figures, out / "passes/main/image.npy", out / "run.json", out / "report.html"]:
         assert mode(f) == 0o644, f
 
 

@@ -22,6 +22,7 @@ from pipeline_sim import load_arch, load_scene, render_scene
 from pipeline_sim.accuracy import error_map
 from pipeline_sim.errors import UserError
 from pipeline_sim.output_folder import MARKER
+from pipeline_sim.workload import WorkloadResult
 from reports import figures as F
 from reports.run_report import headline, html_report, markdown_report, summary_text, unit_table
 from reports.sweep_report import build_report, load_sweep, representative_point, select_images
@@ -411,24 +412,25 @@ def test_png_data_uri_never_contains_http():
 
 
 def test_run_report_has_the_three_figures(tiny_result, tmp_path):
-    info = {"scene": "workloads/scenes/default.toml"}
-    text = html_report(tiny_result, info)
+    info = {"kind": "scene", "workload": {"file": "workloads/scenes/default.toml"}}
+    run = WorkloadResult({"main": tiny_result})
+    text = html_report(run, info)
     p = _check_html(text)
     slugs = [img.get("data-figure") for img in p.imgs]
     assert {"cycle_breakdown", "pipeline", "timeline"} <= set(slugs)
     assert "http" not in text.split("<body>")[1]
     # markdown: text only without files_dir, PNGs with it
-    md = markdown_report(tiny_result, info)
-    assert "report_files" not in md and "frame cycles" in md
+    md = markdown_report(run, info)
+    assert "report_files" not in md and "frame cycles" in md and "![image](passes/main/image.png)" in md
     files = tmp_path / "report_files"
-    md = markdown_report(tiny_result, info, files_dir=files)
+    md = markdown_report(run, info, files_dir=files)
     links = [line.split("](", 1)[1].rstrip(")") for line in md.splitlines() if line.startswith("![")]
     pngs = [link for link in links if link.startswith("report_files/")]
     assert len(pngs) == 3
     for link in pngs:
         assert (tmp_path / link).read_bytes().startswith(PNG_SIGNATURE)
     # the other entry points keep working
-    assert "STE" in summary_text(tiny_result, title="t")
+    assert "STE" in summary_text(run, title="t")
     assert len(unit_table(tiny_result)) == 7
 
 

@@ -1,0 +1,311 @@
+"""Workloads: a TOML file names a kind, and the kind is a program over render passes.
+
+A workload file names its kind with a top-level ``kind = "..."``; a file
+without one is the kind ``scene`` (today's scene files, one standard pass).
+A kind is a :class:`Workload` subclass: it reads its file, builds its passes
+(:class:`pipeline_sim.render.RenderPass`), runs them through
+:meth:`Workload.run_passes` and computes its derived results
+(:class:`WorkloadResult`). ``pipeline-sim run``, ``check``, ``compare`` and
+``sweep`` take any kind (docs/workloads.md).
+
+Kinds are found in two places: the ``scene`` kind here, and the applications
+under ``workloads/apps/<name>/``: each a package whose module defines
+``WORKLOAD`` (its :class:`Workload` subclass), with the package's TOML files
+and meshes beside it; the folder name is the kind's name. :func:`register`
+adds a kind by hand (tests, notebooks).
+
+Nothing here imports the kernels: a file is loaded and checked before any
+numba module is imported; :meth:`Workload.run` imports them.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import importlib
+import pkgutil
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, ClassVar
+
+import pandas as pd
+
+from pipeline_sim.config import ArchConfig
+from pipeline_sim.errors import UserError, did_you_mean, read_input_text
+
+#: The kind of a file that names none.
+DEFAULT_KIND = "scene"
+#: The package whose subpackages are the application kinds.
+APPS_PACKAGE = "workloads.apps"
+#: Image settings a command may override (``--spp``, ``--seed``, a sweep's ``image.*`` keys).
+IMAGE_KEYS = ("width", "height", "spp", "seed")
+
+Progress = Callable[[int, int], None] | None
+
+
+@dataclass
+class WorkloadResult:
+    """What a workload's run gives: every pass's result in run order, its derived results
+    (JSON-able: ``results.json``) and its tables (one CSV file each)."""
+
+    passes: dict[str, Any]  # pass name -> pipeline_sim.render.PassResult, in run order
+    results: dict[str, Any] = field(default_factory=dict)
+    tables: dict[str, pd.DataFrame] = field(default_factory=dict)
+
+    @property
+    def final(self):
+        """The last pass's result (its image is the workload's image in summaries)."""
+        return next(reversed(self.passes.values()))
+
+    def total(self):
+        """The passes as one :class:`~pipeline_sim.render.PassResult`: the final image, every
+        counter summed over the passes, their cycles and wall times added (passes run one after
+        the other). A one-pass workload's total is its pass."""
+        if len(self.passes) == 1:
+            return self.final
+        from pipeline_sim.pipeline import TimingResult
+
+        results = list(self.passes.values())
+        counters = pd.concat([r.counters for r in results], ignore_index=True)
+        counters = (counters.groupby(["unit", "counter"], sort=False, as_index=False)
+                    .agg(value=("value", "sum"), timing_dependent=("timing_dependent", "any")))
+        frame = sum(r.timing.frame_cycles for r in results)
+        units = pd.concat([r.timing.units for r in results], ignore_index=True)
+        units = units.groupby("unit", sort=False, as_index=False)[["busy", "starved", "blocked", "batches"]].sum()
+        units["utilization"] = units.busy / frame if frame else 0.0
+        queues = pd.concat([r.timing.queues.assign(channel=f"{name}:" + r.timing.queues.channel)
+                            for name, r in self.passes.items()], ignore_index=True)
+        timing = TimingResult(frame, units, queues, {}, {})
+        last = self.final
+        return dataclasses.replace(
+            last, name="total", counters=counters, timing=timing, wall_time=sum(r.wall_time for r in results),
+            dimensions={k: any(r.dimensions[k] for r in results) for k in last.dimensions},
+            units_used=list(dict.fromkeys(u for r in results for u in r.units_used)), depth=None, samples=None)
+
+
+class Workload:
+    """A workload kind. A subclass reads its file in :meth:`load`, checks it in :meth:`check`,
+    runs in :meth:`run` and tells what it ran in :meth:`resolved`.
+
+    ``pass_options`` are :class:`~pipeline_sim.render.RenderPass` fields a command sets on every
+    pass the workload runs (``compare`` sets ``zcull_refresh = "ordered"``); a kind runs its passes
+    through :meth:`run_passes` so that they apply.
+    """
+
+    kind: ClassVar[str] = ""
+
+    def __init__(self, path: Path, arch: ArchConfig) -> None:
+        self.path = Path(path)
+        self.arch = arch
+        self.pass_options: dict[str, Any] = {}
+        self.states: list[Any] = []  # every pass run, as run (RenderPass), for run.json
+
+    @classmethod
+    def load(cls, path: Path, data: dict[str, Any], arch: ArchConfig, image: dict[str, int]) -> "Workload":
+        """Build the workload of file ``path`` (``data``: its parsed TOML) on
+        ``arch``. ``image``: image settings a command overrides (keys of :data:`IMAGE_KEYS`, already
+        checked); a kind that has no such setting refuses them with one line."""
+        raise NotImplementedError
+
+    def check(self, archs: list[ArchConfig] | None = None, *, reference_spp: int | None = None) -> str:
+        """Refuse (one line) what a run on each of ``archs`` (default: its own) would refuse later,
+        before any kernel loads; return a one-line summary."""
+        return f"kind {self.kind}"
+
+    def run(self, progress: Progress = None) -> WorkloadResult:
+        """Build and run the passes; compute the derived results."""
+        raise NotImplementedError
+
+    def resolved(self) -> dict[str, Any]:
+        """Everything the workload read, resolved (its own content, not only a digest): run.json's
+        ``workload`` (with :attr:`digest` added)."""
+        return {"kind": self.kind, "file": str(self.path)}
+
+    @property
+    def digest(self) -> str:
+        """A hash of the inputs (the files read), as a scene's digest."""
+        return ""
+
+    def reference_scene(self):
+        """The scene an accuracy reference renders (a sweep's metrics, ``compare --reference-spp``),
+        or None when the kind has no single image to measure."""
+        return None
+
+    def on(self, arch: ArchConfig) -> "Workload":
+        """The same workload on another architecture (``compare``: one per algorithm), nothing run."""
+        other = copy.copy(self)
+        other.arch = arch
+        other.pass_options = dict(self.pass_options)
+        other.states = []
+        return other
+
+    def run_passes(self, passes: list[Any], progress: Progress = None) -> dict[str, Any]:
+        """Run ``passes`` in order (a pass's ``texture`` may name an earlier pass) with
+        :attr:`pass_options` set on each; record them for :meth:`pass_states`."""
+        from pipeline_sim.render import run_passes
+
+        passes = [dataclasses.replace(p, **self.pass_options) for p in passes]
+        self.states.extend(passes)
+        return run_passes(passes, progress=progress)
+
+
+def pass_state(p: Any) -> dict[str, Any]:
+    """run.json's record of one pass as it ran: its state (``RenderPass.state`` where the pass
+    has one, field by field) and its sampling, clear values, z-cull refresh, shader and texture."""
+    texture = p.texture
+    out: dict[str, Any] = {
+        "name": p.name, "spp": p.spp, "seed": p.seed,
+        "sample_pattern": p.sample_pattern or ("table" if p.sample_table is not None
+                                               else p.arch.pipeline.sample_pattern),
+        "sample_table": None if p.sample_table is None else p.sample_table,
+        "clear_color": list(p.clear_color), "clear_depth": p.clear_depth, "zcull_refresh": p.zcull_refresh,
+        "shader": getattr(p.shader, "__qualname__", None) or getattr(p.shader, "__name__", repr(p.shader)),
+        "shader_module": getattr(p.shader, "__module__", None),
+        "params": p.params,
+        "texture": texture if isinstance(texture, str) or texture is None else f"array {list(texture.shape)}",
+        "triangles": p.draw.n, "width": p.draw.width, "height": p.draw.height,
+    }
+    state = getattr(p, "state", None)
+    if state is not None and dataclasses.is_dataclass(state):
+        out["state"] = dataclasses.asdict(state)
+    return out
+
+
+class SceneWorkload(Workload):
+    """The kind ``scene``: a scene file rendered in one standard pass named ``main``
+    (:func:`pipeline_sim.render.scene_pass`)."""
+
+    kind = "scene"
+
+    def __init__(self, path: Path, arch: ArchConfig, scene, data: dict[str, Any] | None) -> None:
+        super().__init__(path, arch)
+        self.scene = scene
+        self.data = data
+        self.draw = None
+
+    @classmethod
+    def load(cls, path: Path, data: dict[str, Any], arch: ArchConfig, image: dict[str, int]) -> "SceneWorkload":
+        from pipeline_sim.scene import load_scene, parse_scene
+
+        content = {k: v for k, v in data.items() if k != "kind"}
+        if "kind" in data:  # named explicitly: parsed from the document
+            scene = parse_scene(content, where=str(path), base_dir=Path(path).parent).replace(path=Path(path))
+        else:  # the scene reader's own way, digest of the file's bytes and all
+            scene = load_scene(path)
+        if image:
+            scene = scene.replace(image=dataclasses.replace(scene.image, **image))
+        return cls(path, arch, scene, content)
+
+    @classmethod
+    def of_scene(cls, scene, arch: ArchConfig) -> "SceneWorkload":
+        """The workload of an already loaded scene."""
+        return cls(scene.path or Path("<scene>"), arch, scene, None)
+
+    def check(self, archs: list[ArchConfig] | None = None, *, reference_spp: int | None = None) -> str:
+        from pipeline_sim.preflight import validate_run
+
+        self.draw = validate_run(self.scene, archs or [self.arch], str(self.path), reference_spp=reference_spp)
+        img = self.scene.image
+        return (f"{len(self.scene.objects)} objects, {self.draw.n} triangles, {img.width}x{img.height} at "
+                f"{img.spp} spp, motion={self.draw.has_motion}, lens={self.draw.has_lens}")
+
+    def run(self, progress: Progress = None) -> WorkloadResult:
+        from pipeline_sim.render import scene_pass
+
+        return WorkloadResult(self.run_passes([scene_pass(self.scene, self.arch, draw=self.draw)], progress))
+
+    def resolved(self) -> dict[str, Any]:
+        img = self.scene.image
+        content = None
+        if self.data is not None:  # the document as read, with the commands' image settings
+            content = {**self.data, "image": {**self.data.get("image", {}), **dataclasses.asdict(img)}}
+        return {
+            **super().resolved(), "scene": content,
+            "image": dataclasses.asdict(img),
+            "objects": [{"name": o.name, "triangles": o.triangle_count, "vertices": len(o.positions),
+                         "material": o.material, "moving": o.moving} for o in self.scene.objects],
+        }
+
+    @property
+    def digest(self) -> str:
+        return self.scene.digest
+
+    def reference_scene(self):
+        return self.scene
+
+
+_KINDS: dict[str, type[Workload]] = {SceneWorkload.kind: SceneWorkload}
+_discovered = [False]
+
+
+def register(cls: type[Workload], name: str | None = None) -> type[Workload]:
+    """Register a workload kind under ``name`` (default: ``cls.kind``); usable as a decorator."""
+    name = name or cls.kind
+    if not name:
+        raise ValueError(f"{cls.__name__}: a workload kind needs a name")
+    cls.kind = name
+    _KINDS[name] = cls
+    return cls
+
+
+def _discover() -> None:
+    """Register every application under ``workloads/apps/``, once."""
+    if _discovered[0]:
+        return
+    _discovered[0] = True
+    try:
+        apps = importlib.import_module(APPS_PACKAGE)
+    except ModuleNotFoundError:
+        return
+    for info in pkgutil.iter_modules(apps.__path__):
+        if info.ispkg and info.name not in _KINDS:
+            module = importlib.import_module(f"{APPS_PACKAGE}.{info.name}")
+            register(module.WORKLOAD, info.name)
+
+
+def kinds() -> list[str]:
+    """Every known kind's name, sorted."""
+    _discover()
+    return sorted(_KINDS)
+
+
+def kind_of(name: str, where: str) -> type[Workload]:
+    """The kind called ``name``, or a one-line error with the nearest name."""
+    if name not in _KINDS:
+        _discover()
+    if name not in _KINDS:
+        known = kinds()
+        raise UserError(f"{where}: kind: unknown workload kind '{name}'{did_you_mean(name, known)}; "
+                        f"known: {', '.join(known)}")
+    return _KINDS[name]
+
+
+def read_workload(path: str | Path) -> tuple[type[Workload], dict[str, Any]]:
+    """The kind a workload file names and its parsed TOML. A file that cannot be read or is not
+    TOML is reported as the scene reader reports it (the kind of a file without ``kind``)."""
+    from pipeline_sim.scene import load_scene
+
+    p = Path(path)
+    where = str(path)
+    _, text = read_input_text(p, where, "scene")
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError:
+        load_scene(p)  # raises its one-line error
+        raise
+    name = data.get("kind", DEFAULT_KIND)
+    if not isinstance(name, str):
+        raise UserError(f"{where}: kind: expected a string naming the workload kind, got {type(name).__name__}")
+    return kind_of(name, where), data
+
+
+def load_workload(path: str | Path, arch: ArchConfig, image: dict[str, int] | None = None) -> Workload:
+    """Load the workload file ``path`` on ``arch`` (``image``: image settings overridden, checked by
+    the caller)."""
+    cls, data = read_workload(path)
+    return cls.load(Path(path), data, arch, dict(image or {}))
+
+
+__all__ = ["APPS_PACKAGE", "DEFAULT_KIND", "IMAGE_KEYS", "SceneWorkload", "Workload", "WorkloadResult", "kind_of",
+           "kinds", "load_workload", "pass_state", "read_workload", "register"]
