@@ -112,7 +112,7 @@ class PassResult:
     samples: Any  # the SampleSet of a one-region frame, else None
     regions: RegionPlan | None = None
     region_samples_made: int = 1  # sample sets generated (a region dropped and needed again counts twice)
-    # per target: its images (box: one; lens: one per view, after the first target's box image)
+    # per target: its images (box: one; lens: one per view; none: none)
     images: dict[str, list[np.ndarray]] = field(default_factory=dict)
     sample_data: dict[str, np.ndarray] = field(default_factory=dict)  # per target resolved "none": (H, W, spp, C)
     append: AppendResult | None = None
@@ -202,7 +202,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
               outputs=p.outputs, tri_draw=tri_draw, n_draws=len(draws))
     # each unit that holds a region's samples or buffers is handed them as its batches move on; the
     # sample tester and shading take a region's samples with its first batch, the ROP (which needs
-    # samples only to refresh z-cull) starts with region 0's buffers
+    # samples only to refresh z-cull and for lens resolves) starts with region 0's buffers
     tester_at = RegionCursor(lambda r: tester.use_samples(samples.region(r)))
     shading_at = RegionCursor(lambda r: shading.use_samples(samples.region(r)))
     rop_at = RegionCursor(lambda r: rop.open_region(plan.bounds(r), samples.region(r) if rop_samples else None),
@@ -253,7 +253,8 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
                 cycles_for(ev[0] + n, cfg.throughput, cfg.instances))
 
     def step_tile_test(tiles):
-        tile_test.clips = clips[tri_draw[tiles["tri"][0]]]
+        if len(tiles["tri"]):
+            tile_test.clips = clips[tri_draw[tiles["tri"][0]]]
         out, ops, ev = tile_test.run(tiles)
         c = cs["tile_test"]
         n_in = len(tiles["tri"])

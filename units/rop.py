@@ -1,18 +1,21 @@
-"""ROP: depth test, blending, float multisample render targets, resolve.
+"""ROP: depth test, blending, float multisample render targets, resolves.
 
 Implements docs/pipeline.md §2.7. Samples arrive in primitive order; each is
-depth-tested against its multisample depth buffer entry with the configured
-function, and on a pass its color is blended (replace, add, min, max) into a
-float RGBA multisample color buffer (``add`` saturates at the largest finite
-float32, so that the buffer stays finite however many layers add up).
-Resolve is a box filter over each pixel's samples. The z-cull boxes of the
-tiles a batch wrote are refreshed from the depth buffer through
-``refresh_zcull``, the one path from the ROP to z-cull; its depth reads and
-comparisons are the ROP's work.
+depth-tested against its multisample depth buffer entry with the pass's
+function, and blended into each of the pass's render targets
+(``pipeline_sim.definitions.Target``): per channel replace, add, min or max
+(``add`` saturates at the largest finite float32, so that the buffer stays
+finite however many layers add up), where the depth test passes or
+regardless of it, for the draws the target takes. Per draw it counts the
+samples passing the depth test (the query). Resolves: a box filter over
+each pixel's samples, one weighted mean per lens region, or none (the
+per-sample data kept). The z-cull boxes of the tiles a batch wrote are
+refreshed from the depth buffer through ``refresh_zcull``, the one path
+from the ROP to z-cull; its depth reads and comparisons are the ROP's work.
 
 The multisample buffers hold one screen region (``pipeline_sim.regions``)
 at a time: when the pipeline moves the ROP on to the next region
-(``open_region``), the current one is resolved into the image and its
+(``open_region``), the current one is resolved into the images and its
 buffers are dropped.
 """
 
