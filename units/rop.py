@@ -40,16 +40,37 @@ DEPTH_BYTES = 4
 F32_MAX = np.float32(np.finfo(np.float32).max)
 
 
-@nb.njit(cache=True)
-def depth_kernel(pix, sidx, z, tri, noread, spp, pix0, func, depth_write, depth_buf, tri_draw, passed, prior, query,
-                 ops, events, traffic):
-    """Depth test each sample in order (docs/pipeline.md §2.7); the buffer starts at pixel ``pix0``.
+@nb.njit(cache=True, inline="always")
+def blend_sample(buf, k, color, i, c0, modes):
+    """Blend record ``i``'s colour channels ``c0..`` into entry ``k`` of one render target, channel ``c``
+    with blend ``modes[c]`` (replace, add, min, max; docs/pipeline.md §2.7)."""
+    for c in range(buf.shape[1]):
+        b = modes[c]
+        x = color[i, c0 + c]
+        if b == 0:
+            buf[k, c] = x
+        elif b == 1:  # saturating: the sum of many layers stays a finite float32
+            buf[k, c] = min(max(buf[k, c] + x, -F32_MAX), F32_MAX)
+        elif b == 2:
+            buf[k, c] = min(buf[k, c], x)
+        else:
+            buf[k, c] = max(buf[k, c], x)
 
-    ``passed[i]``: whether record ``i`` passed; ``query`` counts per draw the samples passing
-    (Nilsson12 §3); ``prior[i]`` gets the depth record ``i`` replaced, NaN where it wrote no depth."""
+
+@nb.njit(cache=True)
+def rop_kernel(pix, sidx, z, tri, color, noread, spp, pix0, func, depth_write, depth_buf, tri_draw, buf, c0, modes,
+               every, draw_ok, passed, prior, query, ops, events, traffic):
+    """Depth test each sample in order and blend it into the pass's first render target ``buf``
+    (docs/pipeline.md §2.7); the buffers start at pixel ``pix0``. Returns the target's writes.
+
+    ``passed[i]``: whether record ``i`` passed (for the other targets, ``blend_kernel``); ``query``
+    counts per draw the samples passing (Nilsson12 §3); ``prior[i]`` gets the depth record ``i``
+    replaced, NaN where it wrote no depth."""
     skipped = 0
     n_passed = 0
+    writes = 0
     per_draw = query.shape[0] > 1  # one draw: its query is the count of samples passed
+    some_draws = not np.all(draw_ok)
     for i in range(pix.shape[0]):
         k = (pix[i] - pix0) * spp + sidx[i]
         d = z[i]
@@ -71,14 +92,18 @@ def depth_kernel(pix, sidx, z, tri, noread, spp, pix0, func, depth_write, depth_
             ok = False
         passed[i] = ok
         prior[i] = np.nan
-        if not ok:
-            continue
-        n_passed += 1
-        if per_draw:
-            query[tri_draw[tri[i]]] += 1
-        if depth_write:
-            prior[i] = old
-            depth_buf[k] = d
+        dr = tri_draw[tri[i]]
+        if ok:
+            n_passed += 1
+            if per_draw:
+                query[dr] += 1
+            if depth_write:
+                prior[i] = old
+                depth_buf[k] = d
+        # written where the depth test passed (or always), for the draws the target takes
+        if (ok or every) and not (some_draws and not draw_ok[dr]):
+            writes += 1
+            blend_sample(buf, k, color, i, c0, modes)
     if not per_draw:
         query[0] += n_passed
     n = pix.shape[0]
@@ -89,42 +114,21 @@ def depth_kernel(pix, sidx, z, tri, noread, spp, pix0, func, depth_write, depth_
     ops[OP_CMP] += n
     traffic[0] += DEPTH_BYTES * (n - skipped)
     traffic[1] += DEPTH_BYTES * n_passed if depth_write else 0
+    return writes
 
 
 @nb.njit(cache=True)
-def blend_kernel(pix, sidx, tri, color, passed, spp, pix0, targets, col0, blend, always, tri_draw, draw_ok, n_blend,
-                 read_bytes, write_bytes, ops, traffic):
-    """Blend each sample, in order, into each render target (docs/pipeline.md §2.7): channel ``c`` of
-    target ``j`` (a (samples, channels) float32 buffer of the tuple ``targets``) takes channel
-    ``col0[j] + c`` of the fragment colour with blend ``blend[j, c]`` (replace, add, min, max), where the
-    sample ``passed`` the depth test (or always, with ``always[j]``) and its draw is one of those
-    ``draw_ok[j]`` allows. A write moves ``write_bytes[j]``; with ``n_blend[j]`` channels blended other
-    than by replace it reads ``read_bytes[j]`` first and adds ``n_blend[j]`` times (min, max count as
-    additions)."""
-    for j in range(len(targets)):
-        buf = targets[j]
-        c0 = col0[j]
-        writes = 0
-        every = always[j]
-        some_draws = not np.all(draw_ok[j])
-        for i in range(pix.shape[0]):
-            if not (passed[i] or every) or (some_draws and not draw_ok[j, tri_draw[tri[i]]]):
-                continue
+def blend_kernel(pix, sidx, tri, color, passed, spp, pix0, tri_draw, buf, c0, modes, every, draw_ok):
+    """Blend each sample, in order, into a further render target (docs/pipeline.md §2.7), as
+    ``rop_kernel`` does into the first, from the samples' depth-test results ``passed``. Returns the
+    target's writes."""
+    writes = 0
+    some_draws = not np.all(draw_ok)
+    for i in range(pix.shape[0]):
+        if (passed[i] or every) and not (some_draws and not draw_ok[tri_draw[tri[i]]]):
             writes += 1
-            k = (pix[i] - pix0) * spp + sidx[i]
-            for c in range(buf.shape[1]):
-                b = blend[j, c]
-                if b == 0:
-                    buf[k, c] = color[i, c0 + c]
-                elif b == 1:  # saturating: the sum of many layers stays a finite float32
-                    buf[k, c] = min(max(buf[k, c] + color[i, c0 + c], -F32_MAX), F32_MAX)
-                elif b == 2:
-                    buf[k, c] = min(buf[k, c], color[i, c0 + c])
-                else:
-                    buf[k, c] = max(buf[k, c], color[i, c0 + c])
-        ops[OP_ADD] += n_blend[j] * writes
-        traffic[0] += read_bytes[j] * writes
-        traffic[1] += write_bytes[j] * writes
+            blend_sample(buf, (pix[i] - pix0) * spp + sidx[i], color, i, c0, modes)
+    return writes
 
 
 @nb.njit(cache=True)
@@ -189,13 +193,13 @@ class Rop:
             self.blend[j, :self.channels[j]] = [BLEND_MODES.index(state.blend if m is None else m) for m in modes]
         self.always = np.array([t.depth == "always" for t in self.targets])
         self.draw_ok = np.array([[t.draws is None or d in t.draws for d in range(n_draws)] for t in self.targets])
-        self.n_blend = np.array([int(np.count_nonzero(self.blend[j, :c])) for j, c in enumerate(self.channels)],
-                                np.int64)
-        self.write_bytes = np.array([4 * c for c in self.channels], np.int64)
-        self.read_bytes = np.where(self.n_blend > 0, self.write_bytes, 0)
+        self.n_blend = [int(np.count_nonzero(self.blend[j, :c])) for j, c in enumerate(self.channels)]
+        self.write_bytes = [4 * c for c in self.channels]
+        self.read_bytes = [b if a else 0 for a, b in zip(self.n_blend, self.write_bytes)]
         self.clears = [np.zeros(c, np.float32) if t.clear is None else np.asarray(t.clear, np.float32)
                        for t, c in zip(self.targets, self.channels)]
-        self.tri_draw = np.zeros(0, np.int32) if tri_draw is None else tri_draw
+        self.draws_given = tri_draw is not None
+        self.tri_draw = np.zeros(1, np.int32) if tri_draw is None else tri_draw
         self.queries = np.zeros(n_draws, np.int64)
         rows = (0, height) if rows is None else tuple(rows)
         self.one_region = rows == (0, height)
@@ -279,14 +283,24 @@ class Rop:
         prior = np.empty(n, np.float32)
         passed = np.empty(n, np.bool_)
         pix, sidx = batch["pix"], batch["sidx"]
-        tri = batch.get("tri", np.zeros(n, np.int32))  # without triangles: all of draw 0
-        if n and tri.max() >= len(self.tri_draw):  # none given: every triangle is draw 0
-            self.tri_draw = np.zeros(int(tri.max()) + 1, np.int32)
-        depth_kernel(pix, sidx, batch["z"], tri, batch["noread"], self.spp, self.pix0, self.func, self.depth_write,
-                     self.depth, self.tri_draw, passed, prior, self.queries, ops, events, traffic)
-        blend_kernel(pix, sidx, tri, batch["color"], passed, self.spp, self.pix0, self.buffers, self.col0, self.blend,
-                     self.always, self.tri_draw, self.draw_ok, self.n_blend, self.read_bytes, self.write_bytes, ops,
-                     traffic)
+        if "tri" in batch:
+            tri = batch["tri"]
+            if not self.draws_given and n and tri.max() >= len(self.tri_draw):  # every triangle is draw 0
+                self.tri_draw = np.zeros(int(tri.max()) + 1, np.int32)
+        else:  # records without triangles: all of draw 0
+            tri = np.zeros(n, np.int32)
+        writes = [rop_kernel(pix, sidx, batch["z"], tri, batch["color"], batch["noread"], self.spp, self.pix0,
+                             self.func, self.depth_write, self.depth, self.tri_draw, self.buffers[0], self.col0[0],
+                             self.blend[0], self.always[0], self.draw_ok[0], passed, prior, self.queries, ops,
+                             events, traffic)]
+        writes += [blend_kernel(pix, sidx, tri, batch["color"], passed, self.spp, self.pix0, self.tri_draw,
+                                self.buffers[j], self.col0[j], self.blend[j], self.always[j], self.draw_ok[j])
+                   for j in range(1, len(self.buffers))]
+        # a write moves the target's channels (4 bytes each); a blend other than replace reads them first
+        # and counts one addition per such channel (min and max too)
+        ops[OP_ADD] += sum(a * w for a, w in zip(self.n_blend, writes))
+        traffic[0] += sum(b * w for b, w in zip(self.read_bytes, writes))
+        traffic[1] += sum(b * w for b, w in zip(self.write_bytes, writes))
         request = (batch["pix"], batch["sidx"], prior) if self.zcull is not None else None
         return request, ops, events, traffic
 
