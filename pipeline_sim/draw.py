@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline_sim.errors import UserError
+from pipeline_sim.pass_state import ClipPlanes
 from pipeline_sim.scene import MAX_COORDINATE
 
 MATERIAL_IDS = {"flat": 0, "lambert": 1}
@@ -34,6 +35,7 @@ class Draw:
     ``object_id`` (N,) int32. ``depth_w`` = (c1, c0) when every vertex's
     depth is z/w = c1 + c0 / w (a perspective projection, c0 < 0): it lets
     the tile test turn bounds on w into bounds on depth (Nilsson12 App. A).
+    ``clip``: the draw's own user clip planes (None: its pass state's).
     """
 
     q: np.ndarray
@@ -48,6 +50,7 @@ class Draw:
     width: int
     height: int
     depth_w: tuple[float, float] | None = None
+    clip: ClipPlanes | None = None
 
     @property
     def n(self) -> int:
@@ -60,6 +63,22 @@ class Draw:
     @property
     def has_lens(self) -> bool:
         return bool(np.any(self.lens_x != 0) or np.any(self.lens_y != 0))
+
+
+def merge_draws(draws: list[Draw], where: str) -> tuple[Draw, np.ndarray]:
+    """The draws of one pass as one draw, in submission order (draw 0's triangles first), and each
+    triangle's draw index (int32). The draws share the frame size; ``depth_w`` is kept when they share
+    it, and the clip planes are the caller's, per draw (``where``: the pass, for errors)."""
+    if len(draws) == 1:
+        return draws[0], np.zeros(draws[0].n, np.int32)
+    if not draws or len({(d.width, d.height) for d in draws}) != 1:
+        raise UserError(f"{where}: a pass needs at least one draw, and its draws one frame size")
+    tri_draw = np.concatenate([np.full(d.n, i, np.int32) for i, d in enumerate(draws)])
+    pos, nrm = (np.concatenate([getattr(d, k) for d in draws], axis=1) for k in ("pos", "nrm"))
+    merged = {k: np.concatenate([getattr(d, k) for d in draws])
+              for k in ("q", "r", "lens_x", "lens_y", "color", "material", "object_id")}
+    depth_w = draws[0].depth_w if len({d.depth_w for d in draws}) == 1 else None
+    return Draw(pos=pos, nrm=nrm, width=draws[0].width, height=draws[0].height, depth_w=depth_w, **merged), tri_draw
 
 
 def lens_shift(proj: np.ndarray, w: np.ndarray, radius: float, focus: float) -> tuple[np.ndarray, np.ndarray]:

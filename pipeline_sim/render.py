@@ -6,22 +6,25 @@
     result.counters     # tidy DataFrame: unit, counter, value
     result.timing.units # busy / starved / blocked cycles per unit
 
-A workload with several passes builds ``RenderPass`` objects itself; a pass
-may name an earlier pass in ``texture`` to sample its resolved image.
+A workload with several passes builds ``RenderPass`` objects itself: each
+has one or several draws (each with its own clip planes and occlusion query),
+render targets with their blends and resolves, shader outputs, an append
+buffer, and textures, which may name an earlier pass's images, per-sample
+data or depth (``run_passes``; ``pipeline_sim.targets``).
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import pandas as pd
 
 from pipeline_sim.config import ArchConfig, PipelineConfig
 from pipeline_sim.counters import CounterSet, counters_frame
-from pipeline_sim.draw import Draw, build_draw
+from pipeline_sim.draw import Draw, build_draw, merge_draws
 from pipeline_sim.errors import UserError
 from pipeline_sim.pass_state import PassState, pass_state_of
 from pipeline_sim.pipeline import Stage, TimingResult, chunks, count_records, cycles_for, run_in_order, simulate
@@ -29,6 +32,7 @@ from pipeline_sim.regions import (RegionBatch, RegionCursor, RegionPlan, RegionS
                                   region_step, row_step)
 from pipeline_sim.sampling import make_samples
 from pipeline_sim.shaders import standard_params, standard_shader
+from pipeline_sim.targets import AppendBuffer, AppendResult, ShaderOutput, Target, check_targets
 from units.rop import Rop
 from units.sample_tester import EV_2D, EV_PIXELS, TEST_OPS_MADD, TEST_OPS_MUL, SampleTester
 from units.shading_cache import Shading
@@ -62,9 +66,16 @@ SAMPLE_RECORD_BYTES = 28
 
 @dataclass
 class RenderPass:
-    """One pass: a draw, the architecture, sampling and the shader to run."""
+    """One pass: its draws, the architecture, sampling, the shader to run and the targets it writes.
 
-    draw: Draw
+    ``draw``: one draw or several, run in submission order, each with its own clip planes
+    (``Draw.clip``) and query; ``outputs``: the shader's named outputs; ``targets``: the render targets
+    (None: one RGBA target cleared to ``clear_color``, the state's blend, box resolve); ``append``: an
+    append buffer the shader may write; ``textures``: arrays (H, W, layers) or names of an earlier
+    pass's results (``run_passes``), handed to the shader as a tuple in this order.
+    """
+
+    draw: Draw | Sequence[Draw]
     arch: ArchConfig
     spp: int
     state: PassState | None = None  # None: the state the architecture file carries (pass_state_of)
@@ -72,7 +83,10 @@ class RenderPass:
     name: str = "main"
     shader: Callable = standard_shader
     params: np.ndarray = field(default_factory=lambda: np.zeros(8, np.float32))
-    texture: np.ndarray | str | None = None
+    textures: tuple[np.ndarray | str, ...] = ()
+    outputs: tuple[ShaderOutput, ...] = (ShaderOutput(),)
+    targets: tuple[Target, ...] | None = None
+    append: AppendBuffer | None = None
     clear_color: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
     clear_depth: float = 1.0
     sample_table: np.ndarray | None = None  # given: the pass samples it (pattern "table")
@@ -98,6 +112,11 @@ class PassResult:
     samples: Any  # the SampleSet of a one-region frame, else None
     regions: RegionPlan | None = None
     region_samples_made: int = 1  # sample sets generated (a region dropped and needed again counts twice)
+    # per target: its images (box: one; lens: one per view; none: none)
+    images: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    sample_data: dict[str, np.ndarray] = field(default_factory=dict)  # per target resolved "none": (H, W, spp, C)
+    append: AppendResult | None = None
+    queries: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # per draw: samples passing depth
 
     def counter(self, unit: str, name: str) -> int:
         c = self.counters
@@ -128,14 +147,19 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     """
     start = time.perf_counter()
     arch = p.arch
-    draw = p.draw
     state = p.state
+    where = f"pass {p.name}"
+    draws = [p.draw] if isinstance(p.draw, Draw) else list(p.draw)
+    draw, tri_draw = merge_draws(draws, where)
+    # each draw's clip planes (Nilsson12 §2), set on the tile test per batch: a batch holds one draw's triangles
+    clips = [(d.clip or state.clip).as_array() for d in draws]
+    check_targets(where, p.targets or (Target(),), p.outputs, len(draws), p.append)
     conservative = state.conservative
     ts = 1 if conservative else arch.tile_traverser.tile_size
     motion, lens = draw.has_motion, draw.has_lens
-    texture = textures[p.texture] if isinstance(p.texture, str) else p.texture
-    if isinstance(p.texture, str) and textures is None:
-        raise UserError(f"pass {p.name}: texture '{p.texture}' needs run_passes")
+    shader_textures = _pass_textures(p, textures or {})
+    append = None if p.append is None else (np.zeros((p.append.capacity, len(p.append.fields)), np.float32),
+                                            np.zeros(1, np.int64))
     if p.zcull_refresh not in ZCULL_REFRESH:
         raise UserError(f"pass {p.name}: zcull_refresh '{p.zcull_refresh}' is not one of {', '.join(ZCULL_REFRESH)}")
     ordered = p.zcull_refresh == "ordered"
@@ -162,7 +186,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     traverser = TileTraverser(arch.tile_traverser, setup.table, ts, draw.width, draw.height,
                               coarse_test=algorithm == "hierarchical")
     tile_test = TileTest(arch.tile_test, setup.table, ts, draw.width, draw.height, draw.depth_w,
-                         state.clip.as_array(), tuples=first.tuples)
+                         clips[0], tuples=first.tuples)
     spec = arch.pipeline.specialize
     zcull = ZCull(arch.zcull, state.depth_test, ts, draw.width, draw.height, p.clear_depth,
                   motion or not spec, lens or not spec)
@@ -170,15 +194,18 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         zcull.active = False
     tester = SampleTester(arch.sample_tester, setup.table, None, ts, state.backface_culling, spec)
     shading = Shading(arch.shading, state.shading_mode, state.shading_rate, draw, setup.table, None, p.shader,
-                      p.params, texture, conservative)
+                      p.params, shader_textures, conservative, sum(o.channels for o in p.outputs), append)
+    # the ROP reads a region's samples to refresh z-cull and for lens resolves
+    rop_samples = zcull.active or any(t.resolve == "lens" for t in p.targets or ())
     rop = Rop(arch.rop, state, draw.width, draw.height, spp, p.clear_color, p.clear_depth, zcull if zcull.active else None,
-              first if zcull.active else None, rows=plan.bounds(0), keep_depth=keep_depth)
+              first if rop_samples else None, rows=plan.bounds(0), keep_depth=keep_depth, targets=p.targets,
+              outputs=p.outputs, tri_draw=tri_draw, n_draws=len(draws))
     # each unit that holds a region's samples or buffers is handed them as its batches move on; the
     # sample tester and shading take a region's samples with its first batch, the ROP (which needs
-    # samples only to refresh z-cull) starts with region 0's buffers
+    # samples only to refresh z-cull and for lens resolves) starts with region 0's buffers
     tester_at = RegionCursor(lambda r: tester.use_samples(samples.region(r)))
     shading_at = RegionCursor(lambda r: shading.use_samples(samples.region(r)))
-    rop_at = RegionCursor(lambda r: rop.open_region(plan.bounds(r), samples.region(r) if zcull.active else None),
+    rop_at = RegionCursor(lambda r: rop.open_region(plan.bounds(r), samples.region(r) if rop_samples else None),
                           region=0)
     cs = {u.name: CounterSet(u.name, u.events, u.timing_dependent)
           for u in (setup, traverser, tile_test, zcull, tester, shading, rop)}
@@ -226,6 +253,8 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
                 cycles_for(ev[0] + n, cfg.throughput, cfg.instances))
 
     def step_tile_test(tiles):
+        if len(tiles["tri"]):
+            tile_test.clips = clips[tri_draw[tiles["tri"][0]]]
         out, ops, ev = tile_test.run(tiles)
         c = cs["tile_test"]
         n_in = len(tiles["tri"])
@@ -334,7 +363,10 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
             c.add_ops(ops), c.add_events(ev)
     bins = bin_triangles(setup.table.bounds, ids, plan)
     tpb = pcfg.triangles_per_batch
-    tri_batches = [RegionBatch(r, b[i : i + tpb]) for r, b in enumerate(bins) for i in range(0, len(b), tpb)]
+    # a batch never spans two draws (each has its own clip planes)
+    tri_batches = [RegionBatch(r, part[i : i + tpb]) for r, b in enumerate(bins)
+                   for part in np.split(b, np.flatnonzero(np.diff(tri_draw[b])) + 1)
+                   for i in range(0, len(part), tpb)]
     # FIFOs hold queue_depth batches of the shipped default size, counted in
     # records: a batch size then sets only the granularity of the timing
     default = PipelineConfig()
@@ -346,22 +378,74 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     timing = simulate(stages, tri_batches, pcfg.queue_depth, capacities)
     image = rop.resolve()
     depth = rop.depth_samples()
+    appended = None
+    if append is not None:
+        records, count = append
+        appended = AppendResult(p.append.fields, records[:min(int(count[0]), len(records))],
+                                max(int(count[0]) - len(records), 0))
+        if not np.all(np.isfinite(appended.records)):
+            raise UserError(f"{where}: the shader appended a value that is not finite")
     wall = time.perf_counter() - start
     counters = counters_frame([cs[name] for name in UNIT_ORDER], timing=zcull.active and not ordered)
     return PassResult(
         name=p.name, image=image, counters=counters, timing=timing, wall_time=wall,
         dimensions={"motion": motion, "lens": lens}, units_used=[s.name for s in stages],
         depth=depth, samples=first if plan.count == 1 else None, regions=plan, region_samples_made=samples.made,
+        images=rop.images, sample_data=rop.sample_data(), append=appended, queries=rop.queries,
     )
 
 
+def _pass_textures(p: RenderPass, named: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:
+    """The textures ``p`` names, as the shader takes them: float32 (H, W, layers) arrays, in order."""
+    out = []
+    for tex in p.textures:
+        if isinstance(tex, str):
+            if tex not in named:
+                raise UserError(f"pass {p.name}: texture '{tex}' names no result of an earlier pass "
+                                "(run the passes with run_passes)")
+            tex = named[tex]
+        tex = np.asarray(tex, np.float32)
+        if tex.ndim == 2:
+            tex = tex[:, :, None]
+        if tex.ndim != 3 or 0 in tex.shape:
+            raise UserError(f"pass {p.name}: a texture must be a non-empty (H, W, layers) array, not {tex.shape}")
+        out.append(np.ascontiguousarray(tex))
+    return tuple(out)
+
+
+def pass_textures(result: PassResult) -> dict[str, np.ndarray]:
+    """The names a later pass's ``textures`` may give for the results of pass ``result``:
+
+    * ``"<pass>"``: its image (the first target's box resolve);
+    * ``"<pass>.<target>"``: a target's box image, or its per-sample data (resolve "none"):
+      (H, W, spp * channels), layer ``s * channels + c`` for channel ``c`` of sample ``s``;
+    * ``"<pass>.<target>.<k>"``: view ``k`` of a target's lens resolve;
+    * ``"<pass>.depth"``: its per-sample depth as a texture array, (H, W, spp), one layer per sample
+      index (with a sample table whose sample ``k`` is the tuple ``k`` of every pixel, one per tuple).
+    """
+    n = result.name
+    out = {n: result.image}
+    for target, images in result.images.items():
+        if len(images) == 1:
+            out[f"{n}.{target}"] = images[0]
+        for k, img in enumerate(images):
+            out[f"{n}.{target}.{k}"] = img
+    for target, data in result.sample_data.items():
+        out[f"{n}.{target}"] = data.reshape(data.shape[0], data.shape[1], -1)
+    if result.depth is not None:
+        out[f"{n}.depth"] = result.depth
+    return out
+
+
 def run_passes(passes: list[RenderPass], progress=None) -> dict[str, PassResult]:
-    """Run passes in order; a pass's ``texture`` may name an earlier pass."""
+    """Run passes in order; a pass's ``textures`` may name an earlier pass's results (``pass_textures``).
+    A pass whose depth a later pass names keeps it over several screen regions."""
     results: dict[str, PassResult] = {}
+    named: dict[str, np.ndarray] = {}
+    wanted = {tex for p in passes for tex in p.textures if isinstance(tex, str)}
     for p in passes:
-        if isinstance(p.texture, str) and p.texture not in results:
-            raise UserError(f"pass {p.name}: texture '{p.texture}' names no earlier pass")
-        results[p.name] = run_pass(p, textures={k: v.image for k, v in results.items()}, progress=progress)
+        results[p.name] = run_pass(p, textures=named, progress=progress, keep_depth=f"{p.name}.depth" in wanted)
+        named.update(pass_textures(results[p.name]))
     return results
 
 

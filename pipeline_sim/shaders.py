@@ -3,14 +3,21 @@
 A shader shades a batch of shading points at once::
 
     @numba.njit(cache=True)
-    def my_shader(inputs, params, texture, out):
-        # inputs:  float32[N_INPUTS, K], one row per input named in INPUTS
-        # params:  float32[:], the pass's shader parameters
-        # texture: float32[H, W, 4], an earlier pass's resolved image (or 1x1)
-        # out:     float32[K, 4], RGBA written by the shader
+    def my_shader(inputs, params, textures, out, append):
+        # inputs:   float32[N_INPUTS, K], one row per input named in INPUTS
+        # params:   float32[:], the pass's shader parameters
+        # textures: a tuple of float32[H, W, L] arrays, the pass's textures in the order it names them
+        #           (an earlier pass's resolved image, L = its channels; its per-sample data or depth,
+        #           one layer per sample index; any array); empty when it names none
+        # out:      float32[K, C], the pass's shader outputs side by side (default one RGBA "color")
+        # append:   the pass's append buffer, for append_record
         for i in range(inputs.shape[1]):
             out[i, 0] = inputs[IN_R, i]
             ...
+
+Lookup helpers: ``sample_layer`` (bilinear on one layer), ``fetch`` (one
+texel), ``sample_texture`` (bilinear RGBA); ``append_record`` appends a
+record to the append buffer.
 
 Workloads bring their own shaders in the same form. In standard mode the
 inputs describe the surface point (world position, normal, color at the
@@ -28,7 +35,7 @@ import numpy as np
 from pipeline_sim.definitions import (IN_B, IN_DEPTH, IN_G, IN_MATERIAL, IN_NX, IN_NY, IN_NZ, IN_OBJECT, IN_PX,
                                       IN_PY, IN_PZ, IN_R, IN_T, IN_T_HI, IN_T_LO, IN_TRIANGLE, IN_U, IN_U_HI,
                                       IN_U_LO, IN_V, IN_V_HI, IN_V_LO, IN_X, IN_Y, IN_Z_HI, IN_Z_LO, INPUTS,
-                                      N_INPUTS)
+                                      N_INPUTS, IN_SAMPLE, IN_TUPLE)
 
 # parameters of the standard shader
 LIGHT_DIRECTIONAL, LIGHT_POINT = 0.0, 1.0
@@ -44,7 +51,7 @@ def standard_params(light) -> np.ndarray:
 
 
 @nb.njit(cache=True)
-def standard_shader(inputs, params, texture, out):
+def standard_shader(inputs, params, textures, out, append):
     """Flat (material 0: unlit color) or Lambert (material 1) with one light."""
     kind = params[0]
     for i in range(inputs.shape[1]):
@@ -78,7 +85,7 @@ def standard_shader(inputs, params, texture, out):
 
 
 @nb.njit(cache=True)
-def depth_shader(inputs, params, texture, out):
+def depth_shader(inputs, params, textures, out, append):
     """Writes the sample depth z/w to every channel (depth and shadow maps)."""
     for i in range(inputs.shape[1]):
         d = inputs[IN_DEPTH, i]
@@ -89,7 +96,7 @@ def depth_shader(inputs, params, texture, out):
 
 
 @nb.njit(cache=True)
-def interval_shader(inputs, params, texture, out):
+def interval_shader(inputs, params, textures, out, append):
     """Conservative mode: writes (t_lo, z_lo, t_hi, z_hi) of the pixel's tile test
     (the tz-box of Nilsson12 §3 continuous collision detection)."""
     for i in range(inputs.shape[1]):
@@ -100,9 +107,9 @@ def interval_shader(inputs, params, texture, out):
 
 
 @nb.njit(cache=True)
-def sample_texture(texture, s, t):
-    """Bilinear lookup of ``texture`` (H, W, 4) at (s, t) in [0, 1]^2, t=0 at
-    the top row; clamps at the border. Returns a 4-tuple."""
+def sample_layer(texture, layer, s, t):
+    """Bilinear lookup of layer ``layer`` of ``texture`` (H, W, L) at (s, t) in [0, 1]^2, t=0 at the top
+    row, texel centres at half-integers; clamps at the border."""
     h = texture.shape[0]
     w = texture.shape[1]
     x = min(max(s * w - 0.5, 0.0), w - 1.0)
@@ -113,9 +120,33 @@ def sample_texture(texture, s, t):
     y1 = min(y0 + 1, h - 1)
     fx = x - x0
     fy = y - y0
-    res = np.empty(4, np.float32)
-    for c in range(4):
-        top = texture[y0, x0, c] * (1 - fx) + texture[y0, x1, c] * fx
-        bot = texture[y1, x0, c] * (1 - fx) + texture[y1, x1, c] * fx
-        res[c] = top * (1 - fy) + bot * fy
-    return res[0], res[1], res[2], res[3]
+    top = texture[y0, x0, layer] * (1 - fx) + texture[y0, x1, layer] * fx
+    bot = texture[y1, x0, layer] * (1 - fx) + texture[y1, x1, layer] * fx
+    return top * (1 - fy) + bot * fy
+
+
+@nb.njit(cache=True)
+def fetch(texture, x, y, layer):
+    """Texel (column ``x``, row ``y``) of layer ``layer`` of ``texture`` (H, W, L), no filtering; the
+    coordinates are clamped to the texture."""
+    return texture[min(max(int(y), 0), texture.shape[0] - 1), min(max(int(x), 0), texture.shape[1] - 1), layer]
+
+
+@nb.njit(cache=True)
+def sample_texture(texture, s, t):
+    """Bilinear RGBA lookup (``sample_layer`` of layers 0-3) at (s, t). Returns a 4-tuple."""
+    return (sample_layer(texture, 0, s, t), sample_layer(texture, 1, s, t), sample_layer(texture, 2, s, t),
+            sample_layer(texture, 3, s, t))
+
+
+@nb.njit(cache=True)
+def append_record(append, values):
+    """Append one record (``values``: as many as the buffer has fields) to the pass's append buffer
+    (Nilsson12 §5). Records are kept in the order they are appended; beyond the capacity an append is
+    only counted (the overflow)."""
+    records, count = append
+    i = count[0]
+    count[0] = i + 1
+    if i < records.shape[0]:
+        for f in range(records.shape[1]):
+            records[i, f] = values[f]

@@ -185,8 +185,9 @@ def test_conservative_mode_bounds_every_covered_pixel_and_time():
 
 
 @nb.njit(cache=True)
-def _texture_lookup_shader(inputs, params, texture, out):
+def _texture_lookup_shader(inputs, params, textures, out, append):
     for i in range(inputs.shape[1]):
+        texture = textures[0]
         s = inputs[IN_X, i] / texture.shape[1]
         t = inputs[IN_Y, i] / texture.shape[0]
         r, g, b, a = sample_texture(texture, s, t)
@@ -204,7 +205,7 @@ def test_later_pass_samples_earlier_pass_as_texture(root):
                     dtype=np.float64)
     second = RenderPass(draw=draw_from_clip(quad, width=64, height=36), arch=load_arch(
         overrides=["shading.mode='per_sample'"]), spp=1, name="second", shader=_texture_lookup_shader,
-        texture="first", sample_table=CENTRE)
+        textures=("first",), sample_table=CENTRE)
     out = run_passes([first, second])
     np.testing.assert_allclose(out["second"].image, out["first"].image, atol=1e-6)
 
@@ -262,7 +263,7 @@ def test_specialization_changes_cost_never_the_image(root, scene_name):
 
 
 @nb.njit(cache=True)
-def _clip_probe_shader(inputs, params, texture, out):
+def _clip_probe_shader(inputs, params, textures, out, append):
     """1 for a sample with t <= 0.5 and u >= 0, 1000 otherwise."""
     for i in range(inputs.shape[1]):
         ok = inputs[IN_T, i] <= 0.5 and inputs[IN_U, i] >= 0.0

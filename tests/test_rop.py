@@ -15,7 +15,7 @@ import pytest
 from pipeline_sim.config import BLEND_MODES, DEPTH_FUNCS, RopConfig
 from pipeline_sim.definitions import N_OPS, OP_ADD, OP_CMP
 from pipeline_sim.pass_state import PassState
-from units.rop import EVENTS, Rop, rop_kernel
+from units.rop import EVENTS, Rop
 
 DEPTH_CMP = {
     "less": operator.lt,
@@ -95,20 +95,25 @@ def test_rop_kernel_matches_sequential_reference(func, blend, depth_write):
     npix = width * height
     for trial in range(3):
         clear_depth = float(DEPTH_LEVELS[rng.integers(1, len(DEPTH_LEVELS))])
-        depth_buf = np.full(npix * spp, clear_depth, np.float32)
-        color_buf = (rng.integers(-4, 9, (npix * spp, 4)) / 4.0).astype(np.float32)
+        rop = Rop(RopConfig(), PassState(depth_test=func, blend=blend, depth_write=depth_write), width, height, spp,
+                  (0, 0, 0, 0), clear_depth, zcull=object())  # a z-cull: run returns the priors in its request
+        depth_buf, color_buf = rop.depth, rop.color
+        color_buf[:] = (rng.integers(-4, 9, (npix * spp, 4)) / 4.0).astype(np.float32)
         ref_depth = [np.float32(d) for d in depth_buf]
         ref_color = [[np.float32(c) for c in row] for row in color_buf]
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
         traffic = np.zeros(2, np.int64)
         total = None
-        # several kernel calls carry buffer state, like consecutive batches
+        # several batches carry buffer state
         for batch in range(3):
             frags = random_frags(rng, 80, npix, spp)
-            prior = np.empty(80, np.float32)
-            rop_kernel(*frags, spp, 0, DEPTH_FUNCS.index(func), depth_write, BLEND_MODES.index(blend),
-                       depth_buf, color_buf, prior, ops, events, traffic)
+            request, o, e, t = rop.run(dict(zip(("pix", "sidx", "z", "color", "noread"), frags),
+                                            tri=np.zeros(80, np.int32)))
+            ops += o
+            events += e
+            traffic += t
+            prior = request[2]
             cnt, ref_prior = reference_rop(as_frag_list(*frags), spp, func, depth_write, blend, ref_depth, ref_color)
             np.testing.assert_array_equal(prior, ref_prior)
             total = cnt if total is None else {k: total[k] + cnt[k] for k in total}

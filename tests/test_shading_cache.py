@@ -283,7 +283,7 @@ def test_reference_w_nonpositive_never_hits_across_batches():
 # the Shading unit: shaded colors and 1:1 mode
 # --------------------------------------------------------------------------- #
 @nb.njit
-def cell_shader(inputs, params, texture, out):
+def cell_shader(inputs, params, textures, out, append):
     """Returns (triangle, cell x, cell y): the interpolated 'color' is the
     reference-camera (X, Y, W) of the shading point (see below)."""
     rate = params[0]
@@ -307,7 +307,7 @@ def _shading_unit(cfg, ref, width, height, spp, shader, rng):
                               y=rng.random(npix * spp).astype(np.float32),
                               u=rng.uniform(-1, 1, npix * spp).astype(np.float32),
                               v=rng.uniform(-1, 1, npix * spp).astype(np.float32),
-                              t=rng.random(npix * spp).astype(np.float32))
+                              t=rng.random(npix * spp).astype(np.float32), tup=None)
     table = SimpleNamespace(ref=ref)
     return Shading(cfg, cfg.mode, cfg.shading_rate, draw, table, samples, shader, np.array([cfg.shading_rate], np.float32), None, False)
 
@@ -342,7 +342,7 @@ def test_per_sample_mode_shades_every_sample_once_at_its_own_point():
     rng, ref, _, _ = _setup(9, ntri=5, size=6.0, width=width, height=height)
     calls = []
 
-    def recording_shader(inputs, params, texture, out):
+    def recording_shader(inputs, params, textures, out, append):
         calls.append(inputs.copy())
         out[:, 0] = inputs[IN_X]
         out[:, 1] = inputs[IN_Y]
@@ -392,9 +392,9 @@ def test_per_sample_mode_in_the_pipeline_one_execution_per_covered_sample():
     draw = _moving_draw(3)
     rows = []
 
-    def counting_shader(inputs, params, texture, out):
+    def counting_shader(inputs, params, textures, out, append):
         rows.append(inputs[[IN_X, IN_Y, IN_T, IN_U, IN_V, IN_TRIANGLE]].T.copy())
-        standard_shader(inputs, params, texture, out)
+        standard_shader(inputs, params, textures, out, append)
 
     arch = load_arch(overrides=["shading.mode=per_sample", "pipeline.samples_per_batch=500"])
     res = run_pass(RenderPass(draw=draw, arch=arch, spp=4, shader=counting_shader))

@@ -1,18 +1,21 @@
-"""ROP: depth test, blending, float multisample render targets, resolve.
+"""ROP: depth test, blending, float multisample render targets, resolves.
 
 Implements docs/pipeline.md §2.7. Samples arrive in primitive order; each is
-depth-tested against its multisample depth buffer entry with the configured
-function, and on a pass its color is blended (replace, add, min, max) into a
-float RGBA multisample color buffer (``add`` saturates at the largest finite
-float32, so that the buffer stays finite however many layers add up).
-Resolve is a box filter over each pixel's samples. The z-cull boxes of the
-tiles a batch wrote are refreshed from the depth buffer through
-``refresh_zcull``, the one path from the ROP to z-cull; its depth reads and
-comparisons are the ROP's work.
+depth-tested against its multisample depth buffer entry with the pass's
+function, and blended into each of the pass's render targets
+(``pipeline_sim.definitions.Target``): per channel replace, add, min or max
+(``add`` saturates at the largest finite float32, so that the buffer stays
+finite however many layers add up), where the depth test passes or
+regardless of it, for the draws the target takes. Per draw it counts the
+samples passing the depth test (the query). Resolves: a box filter over
+each pixel's samples, one weighted mean per lens region, or none (the
+per-sample data kept). The z-cull boxes of the tiles a batch wrote are
+refreshed from the depth buffer through ``refresh_zcull``, the one path
+from the ROP to z-cull; its depth reads and comparisons are the ROP's work.
 
 The multisample buffers hold one screen region (``pipeline_sim.regions``)
 at a time: when the pipeline moves the ROP on to the next region
-(``open_region``), the current one is resolved into the image and its
+(``open_region``), the current one is resolved into the images and its
 buffers are dropped.
 """
 
@@ -21,7 +24,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from pipeline_sim.definitions import BLEND_MODES, DEPTH_FUNCS, N_OPS, OP_ADD, OP_CMP
+from pipeline_sim.definitions import BLEND_MODES, DEPTH_FUNCS, N_OPS, OP_ADD, OP_CMP, ShaderOutput, default_targets
 from units.zcull import RF_CHECKS, RF_READ, RF_SCANS, RF_TILES
 
 EVENTS = ("depth_tests", "depth_passed", "depth_reads_skipped", "samples_written", "zcull_refresh_tiles",
@@ -34,18 +37,40 @@ TIMING_DEPENDENT = ("records_in", "compare", "bytes_read", "depth_tests", "depth
                     "zcull_refresh_tiles", "zcull_refresh_scans")
 
 DEPTH_BYTES = 4
-COLOR_BYTES = 16
 F32_MAX = np.float32(np.finfo(np.float32).max)
 
 
-@nb.njit(cache=True)
-def rop_kernel(pix, sidx, z, color, noread, spp, pix0, func, depth_write, blend, depth_buf, color_buf, prior, ops,
-               events, traffic):
-    """Depth test and blend each sample in order (docs/pipeline.md §2.7); the buffers start at pixel ``pix0``.
+@nb.njit(cache=True, inline="always")
+def blend_sample(buf, k, color, i, c0, modes):
+    """Blend record ``i``'s colour channels ``c0..`` into entry ``k`` of one render target, channel ``c``
+    with blend ``modes[c]`` (replace, add, min, max; docs/pipeline.md §2.7)."""
+    for c in range(buf.shape[1]):
+        b = modes[c]
+        x = color[i, c0 + c]
+        if b == 0:
+            buf[k, c] = x
+        elif b == 1:  # saturating: the sum of many layers stays a finite float32
+            buf[k, c] = min(max(buf[k, c] + x, -F32_MAX), F32_MAX)
+        elif b == 2:
+            buf[k, c] = min(buf[k, c], x)
+        else:
+            buf[k, c] = max(buf[k, c], x)
 
-    ``prior[i]`` gets the depth record ``i`` replaced, NaN where it wrote no depth."""
+
+@nb.njit(cache=True)
+def rop_kernel(pix, sidx, z, tri, color, noread, spp, pix0, func, depth_write, depth_buf, tri_draw, buf, c0, modes,
+               every, draw_ok, passed, prior, query, ops, events, traffic):
+    """Depth test each sample in order and blend it into the pass's first render target ``buf``
+    (docs/pipeline.md §2.7); the buffers start at pixel ``pix0``. Returns the target's writes.
+
+    ``passed[i]``: whether record ``i`` passed (for the other targets, ``blend_kernel``); ``query``
+    counts per draw the samples passing (Nilsson12 §3); ``prior[i]`` gets the depth record ``i``
+    replaced, NaN where it wrote no depth."""
     skipped = 0
-    passed = 0
+    n_passed = 0
+    writes = 0
+    per_draw = query.shape[0] > 1  # one draw: its query is the count of samples passed
+    some_draws = not np.all(draw_ok)
     for i in range(pix.shape[0]):
         k = (pix[i] - pix0) * spp + sidx[i]
         d = z[i]
@@ -65,34 +90,45 @@ def rop_kernel(pix, sidx, z, color, noread, spp, pix0, func, depth_write, blend,
             ok = True
         else:
             ok = False
+        passed[i] = ok
         prior[i] = np.nan
-        if not ok:
-            continue
-        passed += 1
-        if depth_write:
-            prior[i] = old
-            depth_buf[k] = d
-        if blend == 0:
-            for c in range(4):
-                color_buf[k, c] = color[i, c]
-        else:
-            for c in range(4):
-                if blend == 1:  # saturating: the sum of many layers stays a finite float32
-                    color_buf[k, c] = min(max(color_buf[k, c] + color[i, c], -F32_MAX), F32_MAX)
-                elif blend == 2:
-                    color_buf[k, c] = min(color_buf[k, c], color[i, c])
-                else:
-                    color_buf[k, c] = max(color_buf[k, c], color[i, c])
+        dr = tri_draw[tri[i]]
+        if ok:
+            n_passed += 1
+            if per_draw:
+                query[dr] += 1
+            if depth_write:
+                prior[i] = old
+                depth_buf[k] = d
+        # written where the depth test passed (or always), for the draws the target takes
+        if (ok or every) and not (some_draws and not draw_ok[dr]):
+            writes += 1
+            blend_sample(buf, k, color, i, c0, modes)
+    if not per_draw:
+        query[0] += n_passed
     n = pix.shape[0]
-    blended = passed if blend != 0 else 0
     events[EV_TESTS] += n
     events[EV_SKIPPED] += skipped
-    events[EV_PASSED] += passed
-    events[EV_WRITTEN] += passed
+    events[EV_PASSED] += n_passed
+    events[EV_WRITTEN] += n_passed
     ops[OP_CMP] += n
-    ops[OP_ADD] += 4 * blended
-    traffic[0] += DEPTH_BYTES * (n - skipped) + COLOR_BYTES * blended
-    traffic[1] += (DEPTH_BYTES * passed if depth_write else 0) + COLOR_BYTES * passed
+    traffic[0] += DEPTH_BYTES * (n - skipped)
+    traffic[1] += DEPTH_BYTES * n_passed if depth_write else 0
+    return writes
+
+
+@nb.njit(cache=True)
+def blend_kernel(pix, sidx, tri, color, passed, spp, pix0, tri_draw, buf, c0, modes, every, draw_ok):
+    """Blend each sample, in order, into a further render target (docs/pipeline.md §2.7), as
+    ``rop_kernel`` does into the first, from the samples' depth-test results ``passed``. Returns the
+    target's writes."""
+    writes = 0
+    some_draws = not np.all(draw_ok)
+    for i in range(pix.shape[0]):
+        if (passed[i] or every) and not (some_draws and not draw_ok[tri_draw[tri[i]]]):
+            writes += 1
+            blend_sample(buf, (pix[i] - pix0) * spp + sidx[i], color, i, c0, modes)
+    return writes
 
 
 @nb.njit(cache=True)
@@ -100,21 +136,33 @@ def resolve_kernel(color_buf, spp, out):
     """Box filter (docs/pipeline.md §2.7): each pixel's mean over its ``spp`` samples, summed in float64."""
     for p in range(out.shape[0]):
         base = p * spp
-        for c in range(4):
+        for c in range(out.shape[1]):
             acc = 0.0
             for s in range(spp):
                 acc += color_buf[base + s, c]
             out[p, c] = acc / spp
 
 
-class Rop:
-    """Functional model of the ROP and the multisample render target.
+def lens_resolve(buf: np.ndarray, spp: int, u: np.ndarray, v: np.ndarray, region, clear: np.ndarray) -> np.ndarray:
+    """Resolve of one lens region (Nilsson12 §8): per pixel, the mean of the samples whose lens position
+    (``u``, ``v``) lies in the region's box window, in float64; the clear value where none does."""
+    inside = (u >= region.u_lo) & (u <= region.u_hi) & (v >= region.v_lo) & (v <= region.v_hi)
+    w = inside.reshape(-1, spp).astype(np.float64)
+    num = np.einsum("ps,psc->pc", w, buf.reshape(-1, spp, buf.shape[1]).astype(np.float64))
+    den = w.sum(axis=1)[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(den > 0, num / den, clear).astype(np.float32)
 
-    ``rows``: the image rows ``[r0, r1)`` of the first screen region (default:
-    the whole frame, then the only region); ``samples``: that region's
-    samples, needed to refresh z-cull's boxes; ``keep_depth``: also keep the
-    whole frame's per-sample depth (``frame_depth``) over several regions
-    (with one region it is the depth buffer itself).
+
+class Rop:
+    """Functional model of the ROP and its multisample render targets.
+
+    ``targets`` (``pipeline_sim.targets.Target``; None: one RGBA target cleared to ``clear_color``) take
+    the shader's ``outputs`` (None: one RGBA "color"); ``tri_draw``: each triangle's draw index (None:
+    all draw 0), of ``n_draws``. ``rows``: the image rows ``[r0, r1)`` of the first screen region
+    (default: the whole frame, then the only region); ``samples``: that region's samples, needed to
+    refresh z-cull's boxes and for lens resolves; ``keep_depth``: also keep the whole frame's per-sample
+    depth (``frame_depth``) over several regions (with one region it is the depth buffer itself).
     """
 
     name = "rop"
@@ -122,24 +170,69 @@ class Rop:
     timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, state, width: int, height: int, spp: int, clear_color, clear_depth: float, zcull=None,
-                 samples=None, rows: tuple[int, int] | None = None, keep_depth: bool = True):
+                 samples=None, rows: tuple[int, int] | None = None, keep_depth: bool = True, targets=None,
+                 outputs=None, tri_draw: np.ndarray | None = None, n_draws: int = 1):
         self.config = config
         self.width = width
         self.height = height
         self.spp = spp
-        self.clear_color = np.asarray(clear_color, np.float32)
         self.clear_depth = np.float32(clear_depth)
         self.func = DEPTH_FUNCS.index(state.depth_test)
         self.depth_write = state.depth_write
-        self.blend = BLEND_MODES.index(state.blend)
         self.zcull = zcull
+        outputs = (ShaderOutput(),) if outputs is None else tuple(outputs)
+        self.targets = default_targets(clear_color) if targets is None else tuple(targets)
+        names = [o.name for o in outputs]
+        offsets = np.cumsum([0] + [o.channels for o in outputs])
+        self.channels = [outputs[names.index(t.source)].channels for t in self.targets]
+        nt = len(self.targets)
+        self.col0 = np.array([offsets[names.index(t.source)] for t in self.targets], np.int64)
+        self.blend = np.zeros((nt, max(self.channels)), np.int64)
+        for j, t in enumerate(self.targets):
+            modes = t.blend if isinstance(t.blend, tuple) else (t.blend,) * self.channels[j]
+            self.blend[j, :self.channels[j]] = [BLEND_MODES.index(state.blend if m is None else m) for m in modes]
+        self.always = np.array([t.depth == "always" for t in self.targets])
+        self.draw_ok = np.array([[t.draws is None or d in t.draws for d in range(n_draws)] for t in self.targets])
+        self.n_blend = [int(np.count_nonzero(self.blend[j, :c])) for j, c in enumerate(self.channels)]
+        self.write_bytes = [4 * c for c in self.channels]
+        self.read_bytes = [b if a else 0 for a, b in zip(self.n_blend, self.write_bytes)]
+        self.clears = [np.zeros(c, np.float32) if t.clear is None else np.asarray(t.clear, np.float32)
+                       for t, c in zip(self.targets, self.channels)]
+        self.draws_given = tri_draw is not None
+        self.tri_draw = np.zeros(1, np.int32) if tri_draw is None else tri_draw
+        self.queries = np.zeros(n_draws, np.int64)
         rows = (0, height) if rows is None else tuple(rows)
         self.one_region = rows == (0, height)
-        self.image = np.empty((height, width, 4), np.float32)
-        self.image[:] = self.clear_color
+        # per target: its images (box: one; lens: one per view; none: its frame of per-sample data over
+        # several regions); ``image``: the first target's box-resolved image, whatever its resolve
+        self.images = {}
+        self.frame_samples = {}
+        for j, t in enumerate(self.targets):
+            n_images = {"box": 1, "lens": len(t.views), "none": 0}[t.resolve]
+            self.images[t.name] = [np.empty((height, width, self.channels[j]), np.float32) for _ in range(n_images)]
+            for img in self.images[t.name]:
+                img[:] = self.clears[j]
+            if t.resolve == "none" and not self.one_region:
+                self.frame_samples[t.name] = np.empty((width * height * spp, self.channels[j]), np.float32)
+        first = self.targets[0]
+        if first.resolve == "box":
+            self.image = self.images[first.name][0]
+        else:
+            self.image = np.empty((height, width, self.channels[0]), np.float32)
+            self.image[:] = self.clears[0]
         self.frame_depth = (np.full(width * height * spp, clear_depth, np.float32)
                             if keep_depth and not self.one_region else None)
         self._open(rows, samples)
+
+    @property
+    def needs_samples(self) -> bool:
+        """Whether the ROP needs each region's samples besides z-cull's refresh: for a lens resolve."""
+        return any(t.resolve == "lens" for t in self.targets)
+
+    @property
+    def color(self) -> np.ndarray:
+        """The first target's multisample buffer (samples, channels) of the current region."""
+        return self.buffers[0]
 
     def _open(self, rows: tuple[int, int], samples) -> None:
         """Fresh (cleared) buffers for image rows ``rows``, whose samples are ``samples``."""
@@ -148,20 +241,33 @@ class Rop:
         self.rows = rows
         self.pix0 = r0 * self.width
         self.depth = np.full(n, self.clear_depth, np.float32)
-        self.color = np.empty((n, 4), np.float32)
-        self.color[:] = self.clear_color
+        self.buffers = tuple(np.empty((n, c), np.float32) for c in self.channels)
+        for buf, clear in zip(self.buffers, self.clears):
+            buf[:] = clear
         self.samples = samples
 
     def _resolve_region(self) -> None:
-        """Box-filter the current region into the image (and keep its depth when asked)."""
+        """Resolve the current region of each target into its images, or keep its samples (and its depth
+        when asked)."""
         r0, r1 = self.rows
-        resolve_kernel(self.color, self.spp, self.image[r0:r1].reshape(-1, 4))
+        lo, hi = self.pix0 * self.spp, r1 * self.width * self.spp
+        for j, t in enumerate(self.targets):
+            buf = self.buffers[j]
+            if t.resolve == "box" or j == 0:
+                img = self.images[t.name][0] if t.resolve == "box" else self.image
+                resolve_kernel(buf, self.spp, img[r0:r1].reshape(-1, buf.shape[1]))
+            if t.resolve == "lens":
+                for view, img in zip(t.views, self.images[t.name]):
+                    img[r0:r1] = lens_resolve(buf, self.spp, self.samples.u, self.samples.v, view,
+                                              self.clears[j]).reshape(r1 - r0, self.width, -1)
+            if t.name in self.frame_samples:
+                self.frame_samples[t.name][lo:hi] = buf
         if self.frame_depth is not None:
-            self.frame_depth[self.pix0 * self.spp : r1 * self.width * self.spp] = self.depth
+            self.frame_depth[lo:hi] = self.depth
 
     def open_region(self, rows: tuple[int, int], samples=None) -> None:
         """Move on to the next screen region, image rows ``rows`` (its ``samples``
-        refresh z-cull's boxes): the current one is resolved into the image and
+        refresh z-cull's boxes and weight lens resolves): the current one is resolved into the images and
         its buffers are dropped for fresh ones."""
         self._resolve_region()
         self._open(rows, samples)
@@ -173,10 +279,28 @@ class Rop:
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
         traffic = np.zeros(2, np.int64)
-        prior = np.empty(len(batch["pix"]), np.float32)
-        rop_kernel(batch["pix"], batch["sidx"], batch["z"], batch["color"], batch["noread"], self.spp, self.pix0,
-                   self.func, self.depth_write, self.blend, self.depth, self.color, prior, ops, events,
-                   traffic)
+        n = len(batch["pix"])
+        prior = np.empty(n, np.float32)
+        passed = np.empty(n, np.bool_)
+        pix, sidx = batch["pix"], batch["sidx"]
+        if "tri" in batch:
+            tri = batch["tri"]
+            if not self.draws_given and n and tri.max() >= len(self.tri_draw):  # every triangle is draw 0
+                self.tri_draw = np.zeros(int(tri.max()) + 1, np.int32)
+        else:  # records without triangles: all of draw 0
+            tri = np.zeros(n, np.int32)
+        writes = [rop_kernel(pix, sidx, batch["z"], tri, batch["color"], batch["noread"], self.spp, self.pix0,
+                             self.func, self.depth_write, self.depth, self.tri_draw, self.buffers[0], self.col0[0],
+                             self.blend[0], self.always[0], self.draw_ok[0], passed, prior, self.queries, ops,
+                             events, traffic)]
+        writes += [blend_kernel(pix, sidx, tri, batch["color"], passed, self.spp, self.pix0, self.tri_draw,
+                                self.buffers[j], self.col0[j], self.blend[j], self.always[j], self.draw_ok[j])
+                   for j in range(1, len(self.buffers))]
+        # a write moves the target's channels (4 bytes each); a blend other than replace reads them first
+        # and counts one addition per such channel (min and max too)
+        ops[OP_ADD] += sum(a * w for a, w in zip(self.n_blend, writes))
+        traffic[0] += sum(b * w for b, w in zip(self.read_bytes, writes))
+        traffic[1] += sum(b * w for b, w in zip(self.write_bytes, writes))
         request = (batch["pix"], batch["sidx"], prior) if self.zcull is not None else None
         return request, ops, events, traffic
 
@@ -198,10 +322,20 @@ class Rop:
         return ops, events, int(work[RF_READ]) * DEPTH_BYTES
 
     def resolve(self) -> np.ndarray:
-        """Box-filter resolve: the mean of each pixel's samples, (H, W, 4) float32
-        (the ROP's own image, not a copy: a frame's image can be gigabytes)."""
+        """Resolve the last region; returns the first target's box-filtered image, the mean of each pixel's
+        samples, (H, W, channels) float32 (the ROP's own image, not a copy: a frame's image can be
+        gigabytes). Every target's images are then in ``images``, its kept samples in ``sample_data``."""
         self._resolve_region()
         return self.image
+
+    def sample_data(self) -> dict[str, np.ndarray]:
+        """After ``resolve``: the per-sample data of each target resolved "none", (H, W, spp, channels)."""
+        out = {}
+        for j, t in enumerate(self.targets):
+            if t.resolve == "none":
+                buf = self.buffers[j] if self.one_region else self.frame_samples[t.name]
+                out[t.name] = buf.reshape(self.height, self.width, self.spp, -1)
+        return out
 
     def depth_samples(self) -> np.ndarray | None:
         """The frame's per-sample depth, (H, W, spp), after ``resolve``; None

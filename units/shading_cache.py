@@ -24,9 +24,9 @@ import numba as nb
 import numpy as np
 
 from pipeline_sim.definitions import (COMMON, IN_B, IN_DEPTH, IN_MATERIAL, IN_NX, IN_NY, IN_NZ, IN_OBJECT, IN_PX, IN_R,
-                                      IN_T, IN_T_HI, IN_T_LO, IN_TRIANGLE, IN_U, IN_U_HI, IN_U_LO, IN_V, IN_V_HI,
-                                      IN_V_LO, IN_X, IN_Y, IN_Z_HI, IN_Z_LO, N_INPUTS, N_OPS, OP_CMP, OP_MADD, OP_MUL,
-                                      OP_RCP)
+                                      IN_SAMPLE, IN_T, IN_T_HI, IN_T_LO, IN_TRIANGLE, IN_TUPLE, IN_U, IN_U_HI, IN_U_LO,
+                                      IN_V, IN_V_HI, IN_V_LO, IN_X, IN_Y, IN_Z_HI, IN_Z_LO, N_INPUTS, N_OPS, OP_CMP,
+                                      OP_MADD, OP_MUL, OP_RCP)
 
 EVENTS = ("lookups", "hits", "misses", "evictions", "shader_executions")
 EV_LOOKUP, EV_HIT, EV_MISS, EV_EVICT, EV_EXEC = range(len(EVENTS))
@@ -111,7 +111,7 @@ def cache_kernel(tri, b0, b1, b2, ref, rate, grid_w, grid_h, tags, stamps, entry
                 sample_req[i] = r
             else:
                 sample_req[i] = -1
-                for c in range(4):
+                for c in range(out_color.shape[1]):
                     out_color[i, c] = entry_color[e, c]
             continue
         n_miss += 1
@@ -196,7 +196,7 @@ def store_requests(req_entry, shaded, entry_color, entry_req):
     for r in range(req_entry.shape[0]):
         e = req_entry[r]
         if e >= 0:
-            for c in range(4):
+            for c in range(shaded.shape[1]):
                 entry_color[e, c] = shaded[r, c]
             entry_req[e] = -1
 
@@ -208,7 +208,7 @@ def deliver_colors(sample_req, shaded, color):
     for i in range(sample_req.shape[0]):
         r = sample_req[i]
         if r >= 0:
-            for c in range(4):
+            for c in range(shaded.shape[1]):
                 color[i, c] = shaded[r, c]
 
 
@@ -251,14 +251,20 @@ def interpolate_kernel(req_tri, req_l, req_t, req_u, req_v, req_x, req_y, req_de
 
 
 class Shading:
-    """Functional model of the shading unit: cache (or 1:1) plus shader cores."""
+    """Functional model of the shading unit: cache (or 1:1) plus shader cores.
+
+    The shader is called as ``shader(inputs, params, textures, out, append)``
+    (``pipeline_sim.shaders``): ``textures`` a tuple of float32 (H, W, layers)
+    arrays, ``out`` (shading points, ``channels``) its named outputs side by
+    side, ``append`` the pass's append buffer (records, count).
+    """
 
     name = "shading"
     events = EVENTS
     timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, mode: str, shading_rate: float, draw, table, samples, shader, params: np.ndarray,
-                 texture: np.ndarray | None, conservative: bool):
+                 textures, conservative: bool, channels: int = 4, append: tuple | None = None):
         self.config = config
         self.shading_rate = shading_rate
         self.draw = draw
@@ -266,8 +272,10 @@ class Shading:
         self.samples = samples  # of the screen region the batches are in (``use_samples``)
         self.shader = shader
         self.params = np.ascontiguousarray(params, dtype=np.float32)
-        self.texture = (np.zeros((1, 1, 4), np.float32) if texture is None
-                        else np.ascontiguousarray(texture, dtype=np.float32))
+        self.textures = () if textures is None else tuple(np.ascontiguousarray(t, dtype=np.float32) for t in textures)
+        self.channels = channels
+        # no append buffer: an empty one, every append counted as overflow
+        self.append = (np.zeros((0, 1), np.float32), np.zeros(1, np.int64)) if append is None else append
         self.conservative = conservative
         self.cached = mode == "cache" and not conservative
         ways = config.cache_ways
@@ -275,7 +283,7 @@ class Shading:
         self.tags = np.full((nsets, ways), -1, np.int64)
         self.stamps = np.zeros((nsets, ways), np.int64)
         self.entry_req = np.full(nsets * ways, -1, np.int32)
-        self.entry_color = np.zeros((nsets * ways, 4), np.float32)
+        self.entry_color = np.zeros((nsets * ways, channels), np.float32)
         self.clock = 0
         self.grid_w = int(np.ceil(draw.width / shading_rate))
         self.grid_h = int(np.ceil(draw.height / shading_rate))
@@ -285,9 +293,9 @@ class Shading:
         self.samples = samples
 
     def _shade(self, inputs: np.ndarray) -> np.ndarray:
-        out = np.zeros((inputs.shape[1], 4), np.float32)
+        out = np.zeros((inputs.shape[1], self.channels), np.float32)
         if inputs.shape[1]:
-            self.shader(inputs, self.params, self.texture, out)
+            self.shader(inputs, self.params, self.textures, out, self.append)
         return out
 
     def run(self, batch: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
@@ -297,7 +305,7 @@ class Shading:
             return self._run_conservative(batch, ops, events)
         n = len(batch["tri"])
         s = self.samples
-        color = np.zeros((n, 4), np.float32)
+        color = np.zeros((n, self.channels), np.float32)
         if self.cached:
             sample_req = np.empty(n, np.int32)
             req_entry = np.empty(n, np.int32)
@@ -318,6 +326,7 @@ class Shading:
                                (px + 0.5).astype(np.float32), (py + 0.5).astype(np.float32),
                                batch["z"][first], self.draw.pos, self.draw.nrm, self.draw.color,
                                self.draw.material, self.draw.object_id, inputs, ops)
+            inputs[IN_SAMPLE:IN_TUPLE + 1] = -1  # a shading point of the reference camera is no sample
             shaded = self._shade(inputs)
             deliver_colors(sample_req, shaded, color)
             store_requests(req_entry[:nreq], shaded, self.entry_color, self.entry_req)
@@ -331,6 +340,8 @@ class Shading:
                                (px + s.x[k]).astype(np.float32), (py + s.y[k]).astype(np.float32), batch["z"],
                                self.draw.pos, self.draw.nrm, self.draw.color, self.draw.material,
                                self.draw.object_id, inputs, ops)
+            inputs[IN_SAMPLE] = batch["sidx"]
+            inputs[IN_TUPLE] = -1 if s.tup is None else s.tup[k]
             color = self._shade(inputs)
             events[EV_EXEC] += n  # 1:1 shading: no cache lookups
         out = dict(batch)
@@ -352,6 +363,7 @@ class Shading:
         inputs[IN_T] = 0.5 * (batch["t_lo"] + batch["t_hi"])
         inputs[IN_DEPTH] = batch["z_lo"]
         inputs[IN_R:IN_B + 1] = self.draw.color[tri].mean(axis=1).T
+        inputs[IN_SAMPLE:IN_TUPLE + 1] = -1  # a tile, no sample
         color = self._shade(inputs)
         events[EV_EXEC] += n
         out = {"tri": tri, "pix": (batch["ty"] * self.draw.width + batch["tx"]).astype(np.int32),
