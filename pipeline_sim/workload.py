@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, ClassVar
 
+import numpy as np
 import pandas as pd
 
 from pipeline_sim.config import ArchConfig
@@ -141,7 +142,7 @@ class Workload:
         return other
 
     def run_passes(self, passes: list[Any], progress: Progress = None) -> dict[str, Any]:
-        """Run ``passes`` in order (a pass's ``texture`` may name an earlier pass) with
+        """Run ``passes`` in order (a pass's ``textures`` may name earlier passes) with
         :attr:`pass_options` set on each; record them for :meth:`pass_states`."""
         from pipeline_sim.render import run_passes
 
@@ -151,25 +152,25 @@ class Workload:
 
 
 def pass_state(p: Any) -> dict[str, Any]:
-    """run.json's record of one pass as it ran: its state (``RenderPass.state`` where the pass
-    has one, field by field) and its sampling, clear values, z-cull refresh, shader and texture."""
-    texture = p.texture
-    out: dict[str, Any] = {
+    """run.json's record of one pass as it ran: its state (field by field), sampling, clear values,
+    z-cull refresh, shader, textures, outputs, targets, append buffer and draws."""
+    draws = list(p.draw) if isinstance(p.draw, (list, tuple)) else [p.draw]
+    return {
         "name": p.name, "spp": p.spp, "seed": p.seed,
-        "sample_pattern": p.sample_pattern or ("table" if p.sample_table is not None
-                                               else p.arch.pipeline.sample_pattern),
-        "sample_table": None if p.sample_table is None else p.sample_table,
+        "state": dataclasses.asdict(p.state),
+        "sample_pattern": "table" if p.sample_table is not None else p.state.sample_pattern,
+        "sample_table": p.sample_table,
         "clear_color": list(p.clear_color), "clear_depth": p.clear_depth, "zcull_refresh": p.zcull_refresh,
         "shader": getattr(p.shader, "__qualname__", None) or getattr(p.shader, "__name__", repr(p.shader)),
         "shader_module": getattr(p.shader, "__module__", None),
         "params": p.params,
-        "texture": texture if isinstance(texture, str) or texture is None else f"array {list(texture.shape)}",
-        "triangles": p.draw.n, "width": p.draw.width, "height": p.draw.height,
+        "textures": [t if isinstance(t, str) else f"array {list(np.shape(t))}" for t in p.textures],
+        "outputs": [dataclasses.asdict(o) for o in p.outputs],
+        "targets": None if p.targets is None else [dataclasses.asdict(t) for t in p.targets],
+        "append": None if p.append is None else dataclasses.asdict(p.append),
+        "draws": [{"triangles": d.n, "clip": None if d.clip is None else dataclasses.asdict(d.clip)} for d in draws],
+        "width": draws[0].width, "height": draws[0].height,
     }
-    state = getattr(p, "state", None)
-    if state is not None and dataclasses.is_dataclass(state):
-        out["state"] = dataclasses.asdict(state)
-    return out
 
 
 class SceneWorkload(Workload):

@@ -58,7 +58,7 @@ def test_run_writes_every_output(small_scene, tmp_path, capsys):
     assert info["kind"] == "scene" and [p["name"] for p in info["passes"]] == ["main"]
     (state,) = info["passes"]
     assert state["dimensions"] == {"motion": True, "lens": True}
-    assert (state["seed"], state["spp"], state["zcull_refresh"], state["texture"]) == (2, 4, "timed", None)
+    assert (state["seed"], state["spp"], state["zcull_refresh"], state["textures"]) == (2, 4, "timed", [])
     assert info["arch"]["tile_traverser"]["tile_size"] == 4 and state["arch_changes"] == {}
     text = capsys.readouterr().out
     assert "STE" in text and "frame cycles" in text and "numba kernels ready" in text

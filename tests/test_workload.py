@@ -114,9 +114,10 @@ def test_two_pass_workload_against_numpy(negative, tmp_path, capsys):
     info = json.loads((out / "run.json").read_text())
     assert info["kind"] == "negative" and [p["name"] for p in info["passes"]] == ["scene", "negative"]
     scene_pass, neg = info["passes"]
-    assert (neg["texture"], neg["spp"], neg["sample_pattern"], neg["shader"]) == ("scene", 1, "table",
-                                                                                   "negative_shader")
-    assert neg["arch_changes"] == {"shading.mode": "per_sample"} and scene_pass["arch_changes"] == {}
+    assert (neg["textures"], neg["spp"], neg["sample_pattern"], neg["shader"]) == (["scene"], 1, "table",
+                                                                                    "negative_shader")
+    assert neg["state"]["shading_mode"] == "per_sample" and scene_pass["state"]["shading_mode"] == "cache"
+    assert neg["arch_changes"] == {} and scene_pass["arch_changes"] == {}
     assert info["workload"]["image"]["spp"] == 8 and info["results"] == ["mean_rgb"]
     # totals: every counter the sum of the two passes'
     per_pass = pd.concat([pd.read_csv(passes / n / "counters.csv") for n in ("scene", "negative")])
