@@ -49,6 +49,8 @@ EXAMPLES = {
     "report": ["pipeline-sim report runs/quick -o runs/quick/report.html"],
 }
 
+SET_HELP = ("override one setting, repeatable: hardware as SECTION.KEY, the pass state as pass.KEY (pass.clip.KEY), "
+            "simulation options as simulation.KEY (docs/architecture-format.md, docs/scene-format.md)")
 FORCE_HELP = ("write into an existing folder that pipeline-sim did not write: its own files are replaced, nothing "
               "else there is removed (without it such a folder is refused)")
 
@@ -69,7 +71,7 @@ def _package_versions() -> dict[str, str]:
 
 
 def _load_inputs(args):
-    from pipeline_sim.config import load_arch
+    from pipeline_sim.config import apply_settings, load_arch
     from pipeline_sim.scene import check_image_value, load_scene
 
     scene = load_scene(args.scene)
@@ -82,8 +84,7 @@ def _load_inputs(args):
     overrides = list(args.set or [])
     if args.tile is not None:
         overrides.append(f"tile_traverser.tile_size={args.tile}")
-    arch = load_arch(args.arch, overrides)
-    return scene, arch
+    return apply_settings(scene, load_arch(args.arch), overrides)
 
 
 def _progress_bar(quiet: bool):
@@ -105,7 +106,7 @@ def cmd_run(args) -> int:
     from pipeline_sim.preflight import validate_run
 
     scene, arch = _load_inputs(args)
-    draw = validate_run(scene, [arch], str(args.scene))  # all of it before a kernel module is imported
+    draw = validate_run([(scene, arch)], str(args.scene))  # all of it before a kernel module is imported
 
     import numpy as np
 
@@ -130,6 +131,8 @@ def cmd_run(args) -> int:
             "image": dataclasses.asdict(scene.image),
             "seed": scene.image.seed,
             "arch": arch.to_dict(),
+            "pass": scene.pass_state.to_dict(),
+            "simulation": scene.simulation.to_dict(),
             "dimensions": result.dimensions,
             "units_used": result.units_used,
             "bypassed": [u for u in ("zcull", "sample_tester") if u not in result.units_used],
@@ -162,7 +165,7 @@ def cmd_check(args) -> int:
     from pipeline_sim.preflight import validate_run
 
     scene, arch = _load_inputs(args)
-    draw = validate_run(scene, [arch], str(args.scene))
+    draw = validate_run([(scene, arch)], str(args.scene))
     print(f"{args.scene}: ok: {len(scene.objects)} objects, {draw.n} triangles, "
           f"{scene.image.width}x{scene.image.height} at {scene.image.spp} spp, "
           f"motion={draw.has_motion}, lens={draw.has_lens}")
@@ -190,14 +193,14 @@ def cmd_warmup(args) -> int:
 def cmd_compare(args) -> int:
     from pipeline_sim.accuracy import ReferenceSpec
     from pipeline_sim.compare import ALGORITHMS, format_checks, format_table, parse_algorithms, write_comparison
-    from pipeline_sim.config import apply_overrides
+    from pipeline_sim.config import apply_settings
     from pipeline_sim.output_folder import OutputFolder
     from pipeline_sim.preflight import validate_run
 
     algorithms = parse_algorithms(args.algorithms)
     scene, arch = _load_inputs(args)
     spec = ReferenceSpec(spp=args.reference_spp) if args.reference_spp else None
-    validate_run(scene, [apply_overrides(arch, ALGORITHMS[name]) for name in algorithms], str(args.scene),
+    validate_run([apply_settings(scene, arch, ALGORITHMS[name]) for name in algorithms], str(args.scene),
                  reference_spp=spec.spp if spec else None)
     with contextlib.ExitStack() as stack:
         out = stack.enter_context(OutputFolder(args.out, "compare", force=args.force)) if args.out else None
@@ -277,8 +280,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--seed", type=int, help="sampling seed (overrides [image].seed)")
         p.add_argument("--tile", type=int, help="tile size in pixels (same as --set tile_traverser.tile_size=N)")
         p.add_argument("--arch", metavar="FILE", help="architecture TOML applied over the shipped default")
-        p.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE",
-                       help="override one architecture setting; repeatable")
+        p.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help=SET_HELP)
 
     run = sub.add_parser("run", help="simulate a scene; write images, counters, timing, run.json and a report",
                          description="Simulate SCENE.toml and write into DIR: image.npy, image.exr (linear "
@@ -302,7 +304,7 @@ def build_parser() -> argparse.ArgumentParser:
                           description="Print the architecture (shipped default, then --arch, then --set) as TOML.",
                           epilog=_epilog("arch"), formatter_class=argparse.RawDescriptionHelpFormatter)
     arch.add_argument("--arch", metavar="FILE", help="architecture TOML applied over the shipped default")
-    arch.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help="override one setting")
+    arch.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help="override one hardware setting")
     arch.set_defaults(func=cmd_arch)
 
     from pipeline_sim.compare import ALGORITHMS, DESCRIPTIONS
@@ -330,7 +332,7 @@ def build_parser() -> argparse.ArgumentParser:
     comp.add_argument("--reference-spp", type=int, metavar="N",
                       help="measure each image's error against a reference at N spp (default: against BBOX)")
     comp.add_argument("--arch", metavar="FILE", help="architecture TOML applied over the shipped default")
-    comp.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help="override one setting")
+    comp.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help=SET_HELP)
     comp.add_argument("--quiet", "-q", action="store_true", help="print nothing on success")
     comp.set_defaults(func=cmd_compare)
 
@@ -393,7 +395,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USER_ERROR
     except MemoryError:   # what the estimate could not foresee (docs/outputs.md): one line, not a traceback
         print("pipeline-sim: error: out of memory: the run needs more than this process may take; lower the "
-              "image size, spp or pipeline.region_samples", file=sys.stderr)
+              "image size, spp or simulation.region_samples", file=sys.stderr)
         return 1
     except OutputError as exc:   # the machine, not the input: a full disk, a folder made read-only mid-run
         print(f"pipeline-sim: error: {exc}", file=sys.stderr)

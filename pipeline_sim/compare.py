@@ -29,13 +29,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline_sim.config import ACCURACY, ArchConfig, apply_overrides, settings_of
+from pipeline_sim.config import ACCURACY, ArchConfig, apply_settings, settings_of
 from pipeline_sim.errors import UserError, did_you_mean
 from pipeline_sim.output_folder import OutputFolder
 
 _HIER = "tile_test.algorithm='hierarchical'"
-_INTERLEAVE = "pipeline.sample_pattern='interleave'"
-# algorithm name -> architecture overrides; all are conservative
+_INTERLEAVE = "pass.sample_pattern='interleave'"
+# algorithm name -> its settings (hardware, and the pass state it needs); all are conservative
 ALGORITHMS: dict[str, list[str]] = {
     "bbox": ["tile_test.algorithm='bbox'"],
     "hull": ["tile_test.algorithm='hull'"],
@@ -164,8 +164,9 @@ def _row(name: str, result) -> dict:
     return row
 
 
-def _accuracy_settings(arch: ArchConfig) -> tuple:
-    return tuple(sorted(settings_of(arch, (ACCURACY,)).items()))
+def _accuracy_settings(scene, arch: ArchConfig) -> tuple:
+    """The ``accuracy`` settings of a run, over the hardware, the pass state and the simulation options."""
+    return tuple(sorted(settings_of(arch, scene.pass_state, scene.simulation, (ACCURACY,)).items()))
 
 
 def compare(scene, arch: ArchConfig, algorithms: list[str], progress=None,
@@ -190,9 +191,9 @@ def compare(scene, arch: ArchConfig, algorithms: list[str], progress=None,
 
     rows, images, groups = [], {}, {}
     for name in algorithms:
-        arch_n = apply_overrides(arch, ALGORITHMS[name])
-        groups.setdefault(_accuracy_settings(arch_n), []).append(name)
-        result = render_scene(scene, arch_n, zcull_refresh=zcull_refresh)
+        scene_n, arch_n = apply_settings(scene, arch, ALGORITHMS[name])
+        groups.setdefault(_accuracy_settings(scene_n, arch_n), []).append(name)
+        result = render_scene(scene_n, arch_n, zcull_refresh=zcull_refresh)
         dimensions = result.dimensions
         rows.append(_row(name, result))
         images[name] = result.image
@@ -200,7 +201,7 @@ def compare(scene, arch: ArchConfig, algorithms: list[str], progress=None,
             progress(name, rows[-1])
     differing = [n for group in groups.values() for n in group[1:] if not np.array_equal(images[n], images[group[0]])]
     table = pd.DataFrame(rows)
-    own = groups.get(_accuracy_settings(arch), algorithms)
+    own = groups.get(_accuracy_settings(scene, arch), algorithms)
     against = reference if reference is not None else images[own[0]]
     errors = [error_metrics(images[n], against) for n in algorithms]
     table["rmse"] = [e["rmse"] for e in errors]

@@ -261,7 +261,7 @@ BAD = [
                                                                                  "the list of values is empty"),
     ('[sweep]\nscene = "scene.toml"\n[grid]\n"tile_traverser.tile_size" = [8, 12]\n',
      "[grid] tile_traverser.tile_size = 12"),
-    ('[sweep]\nscene = "scene.toml"\n[grid]\n"rop.blend" = ["replace", "bogus"]\n', 'rop.blend = "bogus"'),
+    ('[sweep]\nscene = "scene.toml"\n[grid]\n"pass.blend" = ["replace", "bogus"]\n', 'pass.blend = "bogus"'),
     ('[sweep]\nscene = "scene.toml"\n[grid]\n"image.spp" = [1, 3]\n',
      "point image.spp=3: spp = 3 must be a power of two"),
     ('[sweep]\nscene = "scene.toml"\n[[zip]]\n"shading.cache_entries" = [256, 1024]\n"shading.cache_ways" = [4]\n',
