@@ -38,7 +38,9 @@ EXAMPLES = {
             "pipeline-sim run workloads/scenes/motion.toml --set shading.cache_entries=512 "
             "--set zcull.time_slices=8 --out runs/motion"],
     "check": ["pipeline-sim check workloads/scenes/meshes.toml",
-              "pipeline-sim check workloads/scenes/default.toml --spp 64 --set zcull.time_slices=8"],
+              "pipeline-sim check workloads/scenes/default.toml --spp 64 --set zcull.time_slices=8",
+              "pipeline-sim check workloads/scenes/default.toml --set pass.shading_mode=per_sample "
+              "--set pass.clip.t_hi=0.5 --set simulation.region_samples=0"],
     "arch": ["pipeline-sim arch --set tile_traverser.tile_size=16"],
     "warmup": ["pipeline-sim warmup"],
     "compare": ["pipeline-sim compare workloads/scenes/compare/motion_1x.toml --spp 4 --algorithms bbox hierarchical "
