@@ -300,7 +300,8 @@ WHERE_NOW = {
     "rop.blend": ("[pass]", "blend", "pass.blend"),
     "shading.mode": ("[pass]", "shading_mode", "pass.shading_mode"),
     "shading.shading_rate": ("[pass]", "shading_rate", "pass.shading_rate"),
-    **{f"tile_test.clip_{a}_{e}": ("[pass.clip]", f"{a}_{e}", f"pass.clip.{a}_{e}") for a in "tuv" for e in ("lo", "hi")},
+    **{f"tile_test.clip_{a}_{e}": ("[pass.clip]", f"{a}_{e}", f"pass.clip.{a}_{e}")
+       for a in "tuv" for e in ("lo", "hi")},
     **{f"pipeline.{k}": ("[simulation]", k, f"simulation.{k}")
        for k in ("triangles_per_batch", "tiles_per_batch", "samples_per_batch", "region_samples")},
 }
