@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench report warmup clean
+.PHONY: demo test bench report docs warmup clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -29,6 +29,10 @@ bench: $(STAMP)
 report: $(STAMP)
 	$(VENV)/bin/pipeline-sim sweep workloads/sweeps/accuracy_cost.toml --out runs/accuracy_cost
 	$(VENV)/bin/pipeline-sim report runs/accuracy_cost -o runs/accuracy_cost/report.html
+
+## docs: regenerate the settings tables and the counter glossary in docs/ from the code's declarations
+docs: $(STAMP)
+	$(PY) -m pipeline_sim.docgen
 
 warmup: $(STAMP)
 	$(VENV)/bin/pipeline-sim warmup

@@ -10,9 +10,9 @@ costs its exact fractional cycles, so the batch size changes only the
 granularity: the frame-cycle estimate converges as batches shrink. On the
 default workload the section sweeps
 
-* ``pipeline.tiles_per_batch`` together with ``pipeline.samples_per_batch``
+* ``simulation.tiles_per_batch`` together with ``simulation.samples_per_batch``
   (samples = 64 x tiles), triangles per batch at the default;
-* ``pipeline.triangles_per_batch``, tiles and samples per batch at the default;
+* ``simulation.triangles_per_batch``, tiles and samples per batch at the default;
 * all three at their smallest at once;
 
 and reports the frame cycles (simulated), the relative change of frame cycles
@@ -31,9 +31,9 @@ import numpy as np
 
 
 def settings(cfg: dict) -> list[dict]:
-    from pipeline_sim.config import load_arch
+    from pipeline_sim.simulation import SimOptions
 
-    d = load_arch().pipeline
+    d = SimOptions()
     out = [{"sweep": "default", "triangles": d.triangles_per_batch, "tiles": d.tiles_per_batch,
             "samples": d.samples_per_batch}]
     for t in cfg["batch_tiles"]:
@@ -47,17 +47,16 @@ def settings(cfg: dict) -> list[dict]:
 
 def bench(cfg: dict, log) -> dict:
     from benchmarks.workloads import default_pass
-    from pipeline_sim.config import load_arch
     from pipeline_sim.render import run_pass
+    from pipeline_sim.simulation import SimOptions
 
     base = default_pass()
     pts = settings(cfg)
     passes = []
     for s in pts:
-        arch = load_arch(overrides=[f"pipeline.triangles_per_batch={s['triangles']}",
-                                    f"pipeline.tiles_per_batch={s['tiles']}",
-                                    f"pipeline.samples_per_batch={s['samples']}"])
-        passes.append(dataclasses.replace(base, arch=arch))
+        sim = SimOptions(triangles_per_batch=s["triangles"], tiles_per_batch=s["tiles"],
+                         samples_per_batch=s["samples"])
+        passes.append(dataclasses.replace(base, simulation=sim))
     reps = cfg["batch_repeats"]
     walls = [[] for _ in pts]
     cpus = [[] for _ in pts]

@@ -23,7 +23,7 @@ ROP's buffer allocation, and an estimate of how the run's memory divides,
 from array sizes: the sample arrays (x, y, u, v, t float32 per sample) and
 the sample tester's tile-major copies, the multisample buffers (depth
 float32 + RGBA float32 per sample), all of one screen region at a time
-(``pipeline.region_samples``), the resolved image, the per-triangle tables
+(``simulation.region_samples``), the resolved image, the per-triangle tables
 (the draw and triangle setup's table) and the resolve's temporaries.
 """
 
@@ -169,7 +169,7 @@ def frame_point(spec: dict) -> dict:
         def progress(done, n):
             prog["done"], prog["t"] = done, time.perf_counter() - t_start
             step = max(1, n // 20)
-            if done % step < arch.pipeline.triangles_per_batch or done == n:
+            if done % step < p.simulation.triangles_per_batch or done == n:
                 print(json.dumps({"progress": done, "of": n, "elapsed_s": prog["t"],
                                   "rss_mb": _status_mb("VmRSS")}), file=sys.stderr, flush=True)
 

@@ -97,7 +97,7 @@ unless said otherwise:
    small moving, defocused triangles at 1920x1080, 16 spp, each size in a
    fresh process limited to 480 s and a 12 GiB address space: wall time,
    peak RSS (VmHWM), frame cycles and how memory divides (the frame is
-   rendered in screen regions of ``pipeline.region_samples``, so samples
+   rendered in screen regions of ``simulation.region_samples``, so samples
    and multisample buffers exist for one region at a time); a size that does
    not finish is reported with the reason. ``--quick`` runs a tiny stand-in
    (4,000 triangles at 480x270). Writes ``frame.csv``. This section alone

@@ -13,7 +13,9 @@ import importlib
 # name -> module: imported on first use, so that importing the package (as every unit does, for
 # pipeline_sim.definitions) imports nothing else of it, and does not compile or import numba
 _LAZY = {name: module for module, names in (
-    ("config", ("ArchConfig", "load_arch")),
+    ("config", ("ArchConfig", "load_arch", "apply_settings", "pass_settings")),
+    ("pass_state", ("PassState", "ClipPlanes")),
+    ("simulation", ("SimOptions",)),
     ("errors", ("UserError",)),
     ("scene", ("load_scene", "parse_scene", "Scene")),
     ("render", ("render_scene", "run_pass", "run_passes", "RenderPass", "PassResult", "scene_pass")),

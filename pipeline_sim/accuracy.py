@@ -36,11 +36,12 @@ References (:class:`ReferenceSpec`, :func:`reference_image`):
   pipeline's per-pixel sample pattern, which makes it a check on that
   pattern too.
 
-Both keep the architecture's settings declared to define the image (depth
+Both keep the pass state's settings declared to define the image (depth
 test, blending, clip planes, backface culling), take the declared reference
 for each accuracy setting (per-sample shading, the net pattern, the
-standard rather than conservative mode) and the shipped defaults for the
-rest, which cannot change the image (:func:`pipeline_sim.config.reference_arch`).
+standard rather than conservative mode, the shipped cache geometry) and the
+shipped defaults for the rest of the hardware and the simulation options,
+which cannot change the image (:func:`pipeline_sim.config.reference_setup`).
 So a reference depends only on the scene, its image size, the spec and
 those image settings. Both are cached as ``<cache_dir>/<key>.npy`` when a
 cache directory is given.
@@ -59,9 +60,10 @@ from typing import Any
 
 import numpy as np
 
-from pipeline_sim.config import IMAGE, ArchConfig, load_arch, reference_arch, settings_of
+from pipeline_sim.config import IMAGE, ArchConfig, reference_setup, settings_of
 from pipeline_sim.output import atomic_save_npy
-from pipeline_sim.pass_state import pass_state_of
+from pipeline_sim.pass_state import PassState
+from pipeline_sim.simulation import SimOptions
 from pipeline_sim.errors import UserError, did_you_mean
 
 __all__ = ["METRICS", "REFERENCE_KINDS", "ReferenceSpec", "to_display", "error_metrics", "error_map",
@@ -179,13 +181,11 @@ def _sha(obj: Any) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
-def _image_arch(arch: ArchConfig | None) -> dict[str, Any]:
+def _image_settings(arch: ArchConfig, state: PassState) -> dict[str, Any]:
     """The settings declared to define the image (config.IMAGE) that differ from the defaults:
-    the reference key includes them, so the keys of default-architecture references stay stable."""
-    if arch is None:
-        return {}
-    default = settings_of(load_arch(), (IMAGE,))
-    return {k: v for k, v in settings_of(arch, (IMAGE,)).items() if v != default[k]}
+    the reference key includes them, so the keys of default references stay stable."""
+    default = settings_of(ArchConfig(), PassState(), SimOptions(), (IMAGE,))
+    return {k: v for k, v in settings_of(arch, state, SimOptions(), (IMAGE,)).items() if v != default[k]}
 
 
 @dataclass(frozen=True)
@@ -224,7 +224,7 @@ class ReferenceSpec:
             raise UserError(f"reference seed must be in 0..2^63-1, got {self.seed}")
         return self
 
-    def key(self, scene, arch: ArchConfig | None = None) -> str:
+    def key(self, scene, arch: ArchConfig | None = None, state: PassState | None = None) -> str:
         """Stable hex digest naming this reference of ``scene``.
 
         Covers the scene file digest, the scene's content (camera, light,
@@ -232,8 +232,9 @@ class ReferenceSpec:
         image width and height (not its spp or seed, which the reference
         does not use) and this spec. Only the fields that matter are hashed:
         ``spp`` for ``"pipeline"``, ``passes`` for ``"accumulation"``.
-        ``arch`` adds the image-changing settings (back-face culling, depth
-        test, depth write, blend) that differ from the defaults.
+        ``arch`` and ``state`` (default: the scene's pass state) add the
+        image-changing settings (back-face culling, depth test, depth write,
+        blend, clip planes) that differ from the defaults.
         """
         spec: dict[str, Any] = {"kind": self.kind, "seed": int(self.seed)}
         if self.kind == "pipeline":
@@ -248,7 +249,7 @@ class ReferenceSpec:
             "image": _sha({"width": int(scene.image.width), "height": int(scene.image.height)}),
             "spec": _sha(spec),
         }
-        extra = _image_arch(arch)
+        extra = _image_settings(arch or ArchConfig(), state or scene.pass_state)
         if extra:
             data["arch"] = _sha(_canon(extra))
         return _sha(data)[:32]
@@ -272,15 +273,16 @@ def _sobol_table(passes: int, seed: int) -> np.ndarray:
     return table
 
 
-def _render_reference(scene, spec: ReferenceSpec, arch: ArchConfig) -> np.ndarray:
+def _render_reference(scene, spec: ReferenceSpec, arch: ArchConfig, state: PassState,
+                      sim: SimOptions) -> np.ndarray:
     from pipeline_sim.render import run_pass, scene_pass
 
     if spec.kind == "pipeline":
         result = run_pass(scene_pass(scene, arch, spp=spec.spp, seed=spec.seed, sample_table=None,
-                                     state=pass_state_of(arch).replace(sample_pattern="net")))
+                                     state=state.replace(sample_pattern="net"), simulation=sim))
         return result.image.astype(np.float32)
     table = _sobol_table(spec.passes, spec.seed)
-    base = scene_pass(scene, arch, spp=1, seed=spec.seed, sample_table=table[:1])
+    base = scene_pass(scene, arch, spp=1, seed=spec.seed, sample_table=table[:1], state=state, simulation=sim)
     acc = np.zeros((scene.image.height, scene.image.width, 4), dtype=np.float64)
     for row in table:
         acc += run_pass(dataclasses.replace(base, sample_table=row[None, :])).image
@@ -291,23 +293,23 @@ def reference_image(scene, spec: ReferenceSpec = ReferenceSpec(), cache_dir: str
                     arch: ArchConfig | None = None) -> np.ndarray:
     """Reference image (H, W, 4) float32 linear RGBA of ``scene`` at its image size.
 
-    ``arch`` defaults to the shipped architecture; the reference keeps its
-    image-defining settings (depth test, blending, clip planes, backface
-    culling) and takes the declared reference for each accuracy setting
-    (per-sample shading, the net pattern, standard mode):
-    :func:`pipeline_sim.config.reference_arch`. With ``cache_dir`` the
+    ``arch`` defaults to the shipped architecture; the reference keeps the
+    image-defining settings of the scene's pass state (depth test, blending,
+    clip planes, backface culling) and takes the declared reference for each
+    accuracy setting (per-sample shading, the net pattern, standard mode):
+    :func:`pipeline_sim.config.reference_setup`. With ``cache_dir`` the
     result is read from / written to ``cache_dir/<spec.key(...)>.npy`` (written
     to a temporary name, then renamed, so readers never see a partial file).
     """
     if not isinstance(spec, ReferenceSpec):
         raise UserError(f"reference spec must be a ReferenceSpec, got {type(spec).__name__}")
     spec.validate()
-    ref_arch = reference_arch(arch)
+    ref_arch, ref_state, ref_sim = reference_setup(arch, scene.pass_state)
     shape = (scene.image.height, scene.image.width, 4)
     path = None
     if cache_dir is not None:
         cache = Path(cache_dir)
-        path = cache / f"{spec.key(scene, ref_arch)}.npy"
+        path = cache / f"{spec.key(scene, ref_arch, ref_state)}.npy"
         if path.is_file():
             try:
                 cached = np.load(path, allow_pickle=False)
@@ -315,7 +317,7 @@ def reference_image(scene, spec: ReferenceSpec = ReferenceSpec(), cache_dir: str
                 cached = None  # unreadable: recompute and overwrite
             if cached is not None and cached.shape == shape and cached.dtype == np.float32:
                 return cached
-    image = np.ascontiguousarray(_render_reference(scene, spec, ref_arch), dtype=np.float32)
+    image = np.ascontiguousarray(_render_reference(scene, spec, ref_arch, ref_state, ref_sim), dtype=np.float32)
     if path is not None:
         atomic_save_npy(path, image)
     return image

@@ -38,7 +38,9 @@ EXAMPLES = {
             "pipeline-sim run workloads/scenes/motion.toml --set shading.cache_entries=512 "
             "--set zcull.time_slices=8 --out runs/motion"],
     "check": ["pipeline-sim check workloads/scenes/meshes.toml",
-              "pipeline-sim check workloads/scenes/default.toml --spp 64 --set zcull.time_slices=8"],
+              "pipeline-sim check workloads/scenes/default.toml --spp 64 --set zcull.time_slices=8",
+              "pipeline-sim check workloads/scenes/default.toml --set pass.shading_mode=per_sample "
+              "--set pass.clip.t_hi=0.5 --set simulation.region_samples=0"],
     "arch": ["pipeline-sim arch --set tile_traverser.tile_size=16"],
     "warmup": ["pipeline-sim warmup"],
     "compare": ["pipeline-sim compare workloads/scenes/compare/motion_1x.toml --spp 4 --algorithms bbox hierarchical "
@@ -49,6 +51,8 @@ EXAMPLES = {
     "report": ["pipeline-sim report runs/quick -o runs/quick/report.html"],
 }
 
+SET_HELP = ("override one setting, repeatable: hardware as SECTION.KEY, the pass state as pass.KEY (pass.clip.KEY), "
+            "simulation options as simulation.KEY (docs/architecture-format.md, docs/scene-format.md)")
 FORCE_HELP = ("write into an existing folder that pipeline-sim did not write: its own files are replaced, nothing "
               "else there is removed (without it such a folder is refused)")
 
@@ -70,7 +74,7 @@ def _package_versions() -> dict[str, str]:
 
 def _load_inputs(args):
     """The workload file of ``args.scene`` with ``--spp``/``--seed``, on the architecture of
-    ``--arch``/``--set``/``--tile``."""
+    ``--arch``, with the ``--set``/``--tile`` settings (hardware, pass state, simulation options)."""
     from pipeline_sim.config import load_arch
     from pipeline_sim.scene import check_image_value
     from pipeline_sim.workload import read_workload
@@ -81,8 +85,8 @@ def _load_inputs(args):
     overrides = list(args.set or [])
     if args.tile is not None:
         overrides.append(f"tile_traverser.tile_size={args.tile}")
-    arch = load_arch(args.arch, overrides)
-    return cls.load(Path(args.scene), data, arch, image), arch
+    workload = cls.load(Path(args.scene), data, load_arch(args.arch), image).with_settings(overrides)
+    return workload, workload.arch
 
 
 def _progress_bar(quiet: bool):
@@ -154,7 +158,6 @@ def cmd_warmup(args) -> int:
 def cmd_compare(args) -> int:
     from pipeline_sim.accuracy import ReferenceSpec
     from pipeline_sim.compare import ALGORITHMS, format_checks, format_table, parse_algorithms, write_comparison
-    from pipeline_sim.config import apply_overrides
     from pipeline_sim.output_folder import OutputFolder
 
     algorithms = parse_algorithms(args.algorithms)
@@ -164,7 +167,7 @@ def cmd_compare(args) -> int:
     if spec is not None and scene is None:
         raise UserError(f"--reference-spp: a workload of kind '{workload.kind}' has no single image to measure "
                         "against a reference")
-    workload.check([apply_overrides(arch, ALGORITHMS[name]) for name in algorithms],
+    workload.check([workload.with_settings(ALGORITHMS[name]) for name in algorithms],
                    reference_spp=spec.spp if spec else None)
     with contextlib.ExitStack() as stack:
         out = stack.enter_context(OutputFolder(args.out, "compare", force=args.force)) if args.out else None
@@ -257,8 +260,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--seed", type=int, help="sampling seed (overrides [image].seed)")
         p.add_argument("--tile", type=int, help="tile size in pixels (same as --set tile_traverser.tile_size=N)")
         p.add_argument("--arch", metavar="FILE", help="architecture TOML applied over the shipped default")
-        p.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE",
-                       help="override one architecture setting; repeatable")
+        p.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help=SET_HELP)
 
     run = sub.add_parser("run", help="run a workload (a scene: one pass); write images, counters, timing, "
                          "results, run.json and a report",
@@ -285,7 +287,7 @@ def build_parser() -> argparse.ArgumentParser:
                           description="Print the architecture (shipped default, then --arch, then --set) as TOML.",
                           epilog=_epilog("arch"), formatter_class=argparse.RawDescriptionHelpFormatter)
     arch.add_argument("--arch", metavar="FILE", help="architecture TOML applied over the shipped default")
-    arch.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help="override one setting")
+    arch.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help="override one hardware setting")
     arch.set_defaults(func=cmd_arch)
 
     from pipeline_sim.compare import ALGORITHMS, DESCRIPTIONS
@@ -313,7 +315,7 @@ def build_parser() -> argparse.ArgumentParser:
     comp.add_argument("--reference-spp", type=int, metavar="N",
                       help="measure each image's error against a reference at N spp (default: against BBOX)")
     comp.add_argument("--arch", metavar="FILE", help="architecture TOML applied over the shipped default")
-    comp.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help="override one setting")
+    comp.add_argument("--set", action="append", metavar="SECTION.KEY=VALUE", help=SET_HELP)
     comp.add_argument("--quiet", "-q", action="store_true", help="print nothing on success")
     comp.set_defaults(func=cmd_compare)
 
@@ -377,7 +379,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USER_ERROR
     except MemoryError:   # what the estimate could not foresee (docs/outputs.md): one line, not a traceback
         print("pipeline-sim: error: out of memory: the run needs more than this process may take; lower the "
-              "image size, spp or pipeline.region_samples", file=sys.stderr)
+              "image size, spp or simulation.region_samples", file=sys.stderr)
         return 1
     except OutputError as exc:   # the machine, not the input: a full disk, a folder made read-only mid-run
         print(f"pipeline-sim: error: {exc}", file=sys.stderr)

@@ -29,13 +29,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline_sim.config import ACCURACY, ArchConfig, apply_overrides, settings_of
+from pipeline_sim.config import ArchConfig
 from pipeline_sim.errors import UserError, did_you_mean
 from pipeline_sim.output_folder import OutputFolder
 
 _HIER = "tile_test.algorithm='hierarchical'"
-_INTERLEAVE = "pipeline.sample_pattern='interleave'"
-# algorithm name -> architecture overrides; all are conservative
+_INTERLEAVE = "pass.sample_pattern='interleave'"
+# algorithm name -> its settings (hardware, and the pass state it needs); all are conservative
 ALGORITHMS: dict[str, list[str]] = {
     "bbox": ["tile_test.algorithm='bbox'"],
     "hull": ["tile_test.algorithm='hull'"],
@@ -164,10 +164,6 @@ def _row(name: str, result) -> dict:
     return row
 
 
-def _accuracy_settings(arch: ArchConfig) -> tuple:
-    return tuple(sorted(settings_of(arch, (ACCURACY,)).items()))
-
-
 def compare(workload, arch: ArchConfig, algorithms: list[str], progress=None,
             reference: np.ndarray | None = None, zcull_refresh: str = "ordered") -> Comparison:
     """Run ``workload`` (a :class:`~pipeline_sim.workload.Workload`, or a scene: its one standard
@@ -194,9 +190,8 @@ def compare(workload, arch: ArchConfig, algorithms: list[str], progress=None,
         workload = SceneWorkload.of_scene(workload, arch)
     rows, images, passes, groups = [], {}, {}, {}
     for name in algorithms:
-        arch_n = apply_overrides(arch, ALGORITHMS[name])
-        groups.setdefault(_accuracy_settings(arch_n), []).append(name)
-        run = workload.on(arch_n)
+        run = workload.with_settings(ALGORITHMS[name])
+        groups.setdefault(run.accuracy_settings(), []).append(name)
         run.pass_options["zcull_refresh"] = zcull_refresh
         out = run.run()
         result = out.total()
@@ -209,7 +204,7 @@ def compare(workload, arch: ArchConfig, algorithms: list[str], progress=None,
     differing = [n for group in groups.values() for n in group[1:]
                  if not all(np.array_equal(a, b) for a, b in zip(passes[n], passes[group[0]], strict=True))]
     table = pd.DataFrame(rows)
-    own = groups.get(_accuracy_settings(arch), algorithms)
+    own = groups.get(workload.accuracy_settings(), algorithms)
     against = reference if reference is not None else images[own[0]]
     errors = [error_metrics(images[n], against) for n in algorithms]
     table["rmse"] = [e["rmse"] for e in errors]

@@ -1,21 +1,24 @@
-"""Architecture configuration: plain dataclasses loaded from TOML.
+"""The hardware an architecture file describes, and the settings of a run across its three kinds.
 
-Every unit owns one section. Values are typed and checked when the
-configuration is built (``load_arch``); unknown names are errors that suggest
-the nearest known name. ``--set section.key=value`` overrides use the same
-dotted paths.
+An architecture file holds only hardware: units' throughput, latency and
+instances, tile size, the culling algorithm and its options, cache
+geometry, z-cull boxes, bandwidth, queue depth, clock. What a pass asks of
+it (mode, depth and blend, clip planes, backface culling, sample pattern,
+shading mode) is the pass state (``pipeline_sim.pass_state``, a scene's
+``[pass]`` table), and how the simulator runs it (batch sizes, screen
+regions) the simulation options (``pipeline_sim.simulation``, a scene's
+``[simulation]`` table). ``--set`` takes all three by their dotted paths:
+``SECTION.KEY`` for hardware, ``pass.KEY`` (``pass.clip.KEY``) and
+``simulation.KEY``; :func:`apply_settings` routes each. A setting that has
+moved out of the architecture file is refused with one line saying where it
+goes now (:data:`MOVED`).
 
-Every setting declares what it can change (:data:`EFFECTS`), from most to
-least: ``image`` (it defines the picture: depth test, blending, clip planes,
-backface culling), ``accuracy`` (it trades image error for cost: sample
-pattern, shading mode and cache, pipeline mode; with a declared reference
-value where one exists), ``counters`` (the functional counters only, never
-the image: tile size, culling algorithm, z-cull boxes) or ``cycles`` (the
-cost model only: throughputs, latencies, batch sizes, queue depth; these
-can still move the counters that depend on timing, docs/pipeline.md §4).
-The accuracy reference of a sweep (:func:`reference_arch`) and the groups
-of algorithms ``compare`` expects the same image from (those whose
-``accuracy`` settings agree) are derived from these declarations.
+Every setting declares what it can change (``pipeline_sim.settings``); the
+accuracy reference of a sweep (:func:`reference_setup`) and the groups of
+algorithms ``compare`` expects the same image from (:func:`settings_of`)
+are derived from these declarations across all three kinds. Types, ranges,
+choices and unknown keys are validated by pydantic from the fields'
+annotations (``pipeline_sim.schema``).
 """
 
 from __future__ import annotations
@@ -25,14 +28,19 @@ import functools
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Literal
 
-import numpy as np
+import tomli_w
 
-from pipeline_sim.definitions import BLEND_MODES, DEPTH_FUNCS
-from pipeline_sim.errors import UserError, did_you_mean, read_input_text, unknown_key_error
-from pipeline_sim.sampling import PATTERNS
-from pipeline_sim.settings import ACCURACY, COUNTERS, CYCLES, EFFECTS, IMAGE, setting  # noqa: F401 (re-exported)
+from pipeline_sim import schema
+from pipeline_sim.errors import UserError, read_input_text
+from pipeline_sim.pass_state import PassState
+from pipeline_sim.settings import (ACCURACY, COUNTERS, CYCLES, EFFECTS, FORBID, IMAGE, Flag, Rate,  # noqa: F401
+                                   count, setting)
+from pipeline_sim.simulation import SimOptions
+
+if TYPE_CHECKING:
+    from pipeline_sim.scene import Scene
 
 DEFAULT_ARCH_PATH = Path(__file__).with_name("data") / "default_arch.toml"
 
@@ -46,181 +54,119 @@ DEFAULT_ARCH_PATH = Path(__file__).with_name("data") / "default_arch.toml"
 # raster per (u, v, t) tuple of a fixed set (Fatahalian09)
 TILE_TEST_ALGORITHMS = ("hierarchical", "bbox", "hull", "dual_space", "two_stage", "interleave_uvt")
 EDGE_SOLVERS = ("linearized", "quadratic")
-# an architecture names a generated pattern; a sample table comes with a pass
-SAMPLE_PATTERNS = tuple(p for p in PATTERNS if p != "table")
+Count = count(1)
+Latency = count(0)
 
 
 @dataclass
 class PipelineConfig:
-    """Global pipeline settings: mode, batching and channel depth."""
+    """The machine's global settings: channel depth, clock, specialization."""
 
-    mode: str = setting("standard", ACCURACY, reference="standard")
-    triangles_per_batch: int = setting(64, CYCLES)
-    tiles_per_batch: int = setting(512, CYCLES)
-    samples_per_batch: int = setting(65536, CYCLES)
-    queue_depth: int = setting(4, CYCLES)
-    clock_ghz: float = setting(1.0, CYCLES)
-    specialize: bool = setting(True, COUNTERS)
-    sample_pattern: str = setting("net", ACCURACY, reference="net")
-    interleave_tuples: int = setting(64, ACCURACY)
-    region_samples: int = setting(1 << 22, COUNTERS)
+    __pydantic_config__ = FORBID
 
-    def validate(self, where: str) -> None:
-        _choice(where, "mode", self.mode, ("standard", "conservative"))
-        for name in ("triangles_per_batch", "tiles_per_batch", "samples_per_batch", "queue_depth"):
-            _at_least(where, name, getattr(self, name), 1)
-        _at_least(where, "region_samples", self.region_samples, 0)
-        _positive(where, "clock_ghz", self.clock_ghz)
-        _choice(where, "sample_pattern", self.sample_pattern, SAMPLE_PATTERNS)
-        _at_least(where, "interleave_tuples", self.interleave_tuples, 1, 64)   # one bit each in a tile's mask
+    queue_depth: Count = setting(4, CYCLES, "capacity of every channel: this many batches of the default size, "
+                                 "counted in records (so a batch size changes only the timing granularity)")
+    clock_ghz: Rate = setting(1.0, CYCLES, "only used to print simulated time")
+    specialize: Flag = setting(True, COUNTERS, "pay only for the dimensions each triangle uses (2D, xyt, xyuv, "
+                               "xyuvt); false runs every test as 5D: same image, more arithmetic")
 
 
 @dataclass
 class UnitTiming:
     """Cost model shared by every unit: items per cycle per instance, latency, instances."""
 
-    throughput: float = setting(1.0, CYCLES)
-    latency: int = setting(10, CYCLES)
-    instances: int = setting(1, CYCLES)
+    __pydantic_config__ = FORBID
 
-    def validate(self, where: str) -> None:
-        _positive(where, "throughput", self.throughput)
-        _at_least(where, "latency", self.latency, 0)
-        _at_least(where, "instances", self.instances, 1)
+    throughput: Rate = setting(1.0, CYCLES, "items per cycle per instance")
+    latency: Latency = setting(10, CYCLES, "cycles")
+    instances: Count = setting(1, CYCLES, "parallel instances")
 
 
 @dataclass
 class TriangleSetupConfig(UnitTiming):
-    throughput: float = 0.5
-    latency: int = 30
-    backface_culling: bool = setting(False, IMAGE)
-
-    def validate(self, where: str) -> None:
-        super().validate(where)
+    throughput: Rate = 0.5
+    latency: Latency = 30
 
 
 @dataclass
 class TileTraverserConfig(UnitTiming):
-    throughput: float = 2.0
-    latency: int = 4
-    tile_size: int = setting(4, COUNTERS)
-    coarse_factor: int = setting(4, COUNTERS)
+    throughput: Rate = 2.0
+    latency: Latency = 4
+    tile_size: count(1, 128) = setting(4, COUNTERS, "pixels, a power of two")
+    coarse_factor: Count = setting(4, COUNTERS, "a coarse tile is coarse_factor x coarse_factor tiles")
 
-    def validate(self, where: str) -> None:
-        super().validate(where)
-        if self.tile_size < 1 or self.tile_size > 128 or self.tile_size & (self.tile_size - 1):
+    def check(self, where: str) -> None:
+        if self.tile_size & (self.tile_size - 1):
             raise UserError(f"{where}.tile_size: must be a power of two from 1 to 128, got {self.tile_size}")
-        _at_least(where, "coarse_factor", self.coarse_factor, 1)
 
 
 @dataclass
 class TileTestConfig(UnitTiming):
-    throughput: float = 1.0
-    latency: int = 12
-    instances: int = 2
-    algorithm: str = setting("hierarchical", COUNTERS)
-    edge_test: bool = setting(True, COUNTERS)
-    edge_solver: str = setting("linearized", COUNTERS)
-    gamma: str = setting("triangle", COUNTERS)
-    lens_bounds: bool = setting(True, COUNTERS)
-    # axis-aligned user clip planes on t, u and v (Nilsson12 §2): samples outside are never covered
-    clip_t_lo: float = setting(0.0, IMAGE)
-    clip_t_hi: float = setting(1.0, IMAGE)
-    clip_u_lo: float = setting(-1.0, IMAGE)
-    clip_u_hi: float = setting(1.0, IMAGE)
-    clip_v_lo: float = setting(-1.0, IMAGE)
-    clip_v_hi: float = setting(1.0, IMAGE)
-
-    def validate(self, where: str) -> None:
-        super().validate(where)
-        _choice(where, "algorithm", self.algorithm, TILE_TEST_ALGORITHMS)
-        _choice(where, "gamma", self.gamma, ("triangle", "tile"))
-        _choice(where, "edge_solver", self.edge_solver, EDGE_SOLVERS)
-        for axis, lo, hi in (("t", 0.0, 1.0), ("u", -1.0, 1.0), ("v", -1.0, 1.0)):
-            a = getattr(self, f"clip_{axis}_lo")
-            b = getattr(self, f"clip_{axis}_hi")
-            if not (lo <= a <= b <= hi):
-                raise UserError(f"{where}.clip_{axis}_lo/clip_{axis}_hi: need {lo} <= lo <= hi <= {hi}, "
-                                f"got [{a}, {b}]")
-
-    @property
-    def clips(self) -> np.ndarray:
-        """(t_lo, t_hi, u_lo, u_hi, v_lo, v_hi) of the user clip planes."""
-        return np.array([self.clip_t_lo, self.clip_t_hi, self.clip_u_lo, self.clip_u_hi, self.clip_v_lo,
-                         self.clip_v_hi])
+    throughput: Rate = 1.0
+    latency: Latency = 12
+    instances: Count = 2
+    algorithm: Literal[TILE_TEST_ALGORITHMS] = setting(
+        "hierarchical", COUNTERS, "`hierarchical` (Munkberg11 §4 tile tests), `bbox` (every sample in the bounds), "
+        "`hull` (McGuire10), `dual_space` (Laine11), `two_stage` (Wu13 §3.3-3.4) or `interleave_uvt` "
+        "(Fatahalian09; needs pass.sample_pattern = \"interleave\")")
+    edge_test: Flag = setting(True, COUNTERS, "hierarchical: the moving-edge test (Munkberg11 §4.2)")
+    edge_solver: Literal[EDGE_SOLVERS] = setting(
+        "linearized", COUNTERS, "`linearized` (Munkberg11 eq. 8-9) or `quadratic`: the edge equations solved per "
+        "tile (Gribel10 §4.1)")
+    gamma: Literal["triangle", "tile"] = setting("triangle", COUNTERS, "the edge slope bound per triangle or "
+                                                 "recomputed per tile")
+    lens_bounds: Flag = setting(True, COUNTERS, "hierarchical: lens intervals u^, v^ per tile")
 
 
 @dataclass
 class ZCullConfig(UnitTiming):
-    throughput: float = 2.0
-    latency: int = 6
-    enabled: bool = setting(True, COUNTERS)
-    time_slices: int = setting(4, COUNTERS)
-    lens_boxes: int = setting(2, COUNTERS)
+    throughput: Rate = 2.0
+    latency: Latency = 6
+    enabled: Flag = setting(True, COUNTERS, "z-cull on")
+    time_slices: Count = setting(4, COUNTERS, "zmin/zmax boxes per tile: time_slices x lens_boxes^2, at most 255")
+    lens_boxes: Count = setting(2, COUNTERS, "lens boxes per axis")
 
-    def validate(self, where: str) -> None:
-        super().validate(where)
-        _at_least(where, "time_slices", self.time_slices, 1)
-        _at_least(where, "lens_boxes", self.lens_boxes, 1)
+    def check(self, where: str) -> None:
         if self.time_slices * self.lens_boxes**2 > 255:
             raise UserError(f"{where}: time_slices * lens_boxes^2 must be at most 255")
 
 
 @dataclass
 class SampleTesterConfig(UnitTiming):
-    throughput: float = 16.0
-    latency: int = 8
-    instances: int = 2
+    throughput: Rate = 16.0
+    latency: Latency = 8
+    instances: Count = 2
 
 
 @dataclass
 class ShadingConfig(UnitTiming):
-    throughput: float = 8.0
-    latency: int = 40
-    mode: str = setting("cache", ACCURACY, reference="per_sample")
-    cache_entries: int = setting(1024, ACCURACY)
-    cache_ways: int = setting(8, ACCURACY)
-    replacement: str = setting("lru", ACCURACY)
-    shading_rate: float = setting(1.0, ACCURACY)
-    shader_cycles: float = setting(32.0, CYCLES)
-    cores: int = setting(32, CYCLES)
+    throughput: Rate = 8.0
+    latency: Latency = 40
+    cache_entries: Count = setting(1024, ACCURACY, "shading-cache entries, a multiple of cache_ways")
+    cache_ways: Count = setting(8, ACCURACY, "shading-cache associativity")
+    replacement: Literal["lru", "fifo"] = setting("lru", ACCURACY, "shading-cache replacement")
+    shader_cycles: Rate = setting(32.0, CYCLES, "cycles of one shader execution on one core")
+    cores: Count = setting(32, CYCLES, "shader cores")
 
-    def validate(self, where: str) -> None:
-        super().validate(where)
-        _choice(where, "mode", self.mode, ("cache", "per_sample"))
-        _choice(where, "replacement", self.replacement, ("lru", "fifo"))
-        _at_least(where, "cache_entries", self.cache_entries, 1)
-        _at_least(where, "cache_ways", self.cache_ways, 1)
+    def check(self, where: str) -> None:
         if self.cache_entries % self.cache_ways:
-            raise UserError(
-                f"{where}: cache_entries ({self.cache_entries}) must be a multiple of "
-                f"cache_ways ({self.cache_ways})"
-            )
-        # a shading-grid cell from 1/64 of a pixel to 1024 pixels: the grid's cell index stays an int64
-        _positive(where, "shading_rate", self.shading_rate, 1 / 64, 1024.0)
-        _positive(where, "shader_cycles", self.shader_cycles)
-        _at_least(where, "cores", self.cores, 1)
+            raise UserError(f"{where}: cache_entries ({self.cache_entries}) must be a multiple of "
+                            f"cache_ways ({self.cache_ways})")
 
 
 @dataclass
 class RopConfig(UnitTiming):
-    throughput: float = 16.0
-    latency: int = 20
-    depth_test: str = setting("less", IMAGE)
-    depth_write: bool = setting(True, IMAGE)
-    blend: str = setting("replace", IMAGE)
-    bandwidth: float = setting(64.0, CYCLES)
-
-    def validate(self, where: str) -> None:
-        super().validate(where)
-        _choice(where, "depth_test", self.depth_test, DEPTH_FUNCS)
-        _choice(where, "blend", self.blend, BLEND_MODES)
-        _positive(where, "bandwidth", self.bandwidth)
+    throughput: Rate = 16.0
+    latency: Latency = 20
+    bandwidth: Rate = setting(64.0, CYCLES, "bytes per cycle to the multisample buffers (depth tests, blends, "
+                              "z-cull refresh scans)")
 
 
 @dataclass
 class ArchConfig:
-    """The whole architecture: one section per unit plus pipeline settings."""
+    """The hardware: one section per unit plus the pipeline's global settings."""
+
+    __pydantic_config__ = FORBID
 
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)
     triangle_setup: TriangleSetupConfig = field(default_factory=TriangleSetupConfig)
@@ -231,16 +177,6 @@ class ArchConfig:
     shading: ShadingConfig = field(default_factory=ShadingConfig)
     rop: RopConfig = field(default_factory=RopConfig)
 
-    def validate(self, where: str = "arch") -> "ArchConfig":
-        for f in fields(self):
-            getattr(self, f.name).validate(f"{where}: {f.name}")
-        if self.tile_test.algorithm == "interleave_uvt" and self.pipeline.sample_pattern != "interleave":
-            raise UserError(f"{where}: tile_test.algorithm = 'interleave_uvt' needs pipeline.sample_pattern = "
-                            f"'interleave' (got '{self.pipeline.sample_pattern}')")
-        # conservative mode rasterizes 1x1 tiles (Nilsson12 §2); the renderer applies
-        # that without rewriting tile_size, so leaving the mode restores it
-        return self
-
     def to_dict(self) -> dict[str, dict[str, Any]]:
         return dataclasses.asdict(self)
 
@@ -249,131 +185,58 @@ class ArchConfig:
 
 
 SECTION_NAMES = tuple(f.name for f in fields(ArchConfig))
+#: The ``--set`` and sweep prefixes of the settings that are not hardware.
+PASS, SIMULATION = "pass", "simulation"
+
+#: Settings an architecture file held before the pass state and the simulation options moved out:
+#: old ``section.key`` -> its path now.
+MOVED = {
+    "pipeline.mode": "pass.mode", "pipeline.sample_pattern": "pass.sample_pattern",
+    "pipeline.interleave_tuples": "pass.interleave_tuples", "triangle_setup.backface_culling": "pass.backface_culling",
+    **{f"tile_test.clip_{a}_{e}": f"pass.clip.{a}_{e}" for a in "tuv" for e in ("lo", "hi")},
+    "rop.depth_test": "pass.depth_test", "rop.depth_write": "pass.depth_write", "rop.blend": "pass.blend",
+    "shading.mode": "pass.shading_mode", "shading.shading_rate": "pass.shading_rate",
+    **{f"pipeline.{k}": f"simulation.{k}" for k in ("triangles_per_batch", "tiles_per_batch", "samples_per_batch",
+                                                     "region_samples")},
+}
 
 
-def _declaration(section_type: type, name: str) -> dict[str, Any]:
-    """The metadata of a setting, from the nearest class that declares it (a unit's own
-    default for ``throughput`` keeps :class:`UnitTiming`'s declaration)."""
-    for cls in section_type.__mro__:
-        f = getattr(cls, "__dataclass_fields__", {}).get(name)
-        if f is not None and "effect" in f.metadata:
-            return dict(f.metadata)
-    raise AssertionError(f"{section_type.__name__}.{name} declares no effect")
+def literal(value: Any) -> str:
+    """``value`` written as a TOML literal (the right-hand side of ``--set``), by tomli_w."""
+    if not isinstance(value, (bool, int, float, str)):
+        raise TypeError(f"not a TOML scalar: {value!r}")
+    return tomli_w.dumps({"v": value}).split("=", 1)[1].strip()
 
 
-@functools.cache
-def setting_effects() -> dict[str, str]:
-    """``"section.key"`` -> the declared effect, for every architecture setting."""
-    arch = ArchConfig()
-    return {f"{name}.{f.name}": _declaration(type(getattr(arch, name)), f.name)["effect"]
-            for name in SECTION_NAMES for f in fields(getattr(arch, name))}
+def moved_error(where: str, old: str, value: Any = None, *, varied: bool = False) -> UserError:
+    """The one line for a setting of ``MOVED``: what it is now and exactly where it goes."""
+    new = MOVED[old]
+    section, key = old.split(".")
+    table, name = new.rsplit(".", 1)
+    what = "pass state" if new.startswith(PASS + ".") else "a simulation option"
+    shown = "..." if value is None or not isinstance(value, (bool, int, float, str)) else literal(value)
+    if varied:
+        return UserError(f"{where}: {old} is {what} now: name it \"{new}\" instead")
+    return UserError(f"{where}: [{section}] {key} is {what} now: set it in the scene's [{table}] table "
+                     f"({name} = {shown}) or with --set {new}={shown}")
 
 
-def settings_of(arch: "ArchConfig", effects: tuple[str, ...]) -> dict[str, Any]:
-    """The values of the settings of ``arch`` whose declared effect is among ``effects``."""
-    out = {}
-    for path, effect in setting_effects().items():
-        if effect in effects:
-            section, key = path.split(".")
-            out[path] = getattr(getattr(arch, section), key)
-    return out
-
-
-def reference_arch(arch: "ArchConfig | None") -> "ArchConfig":
-    """The architecture of an accuracy reference for ``arch``: its ``image`` settings kept, each
-    ``accuracy`` setting at its declared reference value (else the shipped default), and the
-    ``counters`` and ``cycles`` settings, which cannot change the image, at the shipped defaults."""
-    shipped = load_arch()
-    if arch is None:
-        arch = shipped
-    sections = {}
-    for sec in fields(ArchConfig):
-        mine, default = getattr(arch, sec.name), getattr(shipped, sec.name)
-        values = {}
-        for f in fields(mine):
-            decl = _declaration(type(mine), f.name)
-            if decl["effect"] == IMAGE:
-                values[f.name] = getattr(mine, f.name)
-            elif decl["effect"] == ACCURACY and decl["reference"] is not None:
-                values[f.name] = decl["reference"]
-            else:
-                values[f.name] = getattr(default, f.name)
-        sections[sec.name] = dataclasses.replace(default, **values)
-    return ArchConfig(**sections).validate("reference arch")
-
-
-def _choice(where: str, name: str, value: Any, choices: tuple[str, ...]) -> None:
-    if value not in choices:
-        raise UserError(
-            f"{where}.{name}: '{value}' is not one of {', '.join(choices)}"
-            f"{did_you_mean(str(value), choices)}"
-        )
-
-
-# The cost model's range: a rate or a cost from 1e-6 to 1e9 keeps every cycle count of a frame (at most
-# about 1e10 items, each costing at most 1e9 cycles or 1e6 per unit of rate) far inside a float's exact
-# integers, so timing, its CSV and JSON stay finite; counts up to 2^31 - 1 fit the kernels' int32 indices.
-RATE_RANGE = (1e-6, 1e9)
-MAX_COUNT = 2**31 - 1
-
-
-def _positive(where: str, name: str, value: float, low: float = RATE_RANGE[0], high: float = RATE_RANGE[1]) -> None:
-    if not low <= value <= high:   # NaN fails too
-        raise UserError(f"{where}.{name}: must be from {low:g} to {high:g}, got {value}")
-
-
-def _at_least(where: str, name: str, value: int, low: int, high: int = MAX_COUNT) -> None:
-    if not low <= value <= high:
-        raise UserError(f"{where}.{name}: must be from {low} to {high}, got {value}")
-
-
-def _coerce(where: str, key: str, value: Any, default: Any) -> Any:
-    """Check ``value`` against the type of the field default; ints widen to float."""
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise UserError(f"{where}.{key}: expected true or false, got {value!r}")
-        return value
-    if isinstance(default, int):
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise UserError(f"{where}.{key}: expected an integer, got {value!r}")
-        if not -2**63 <= value < 2**63:
-            raise UserError(f"{where}.{key}: expected a 64-bit integer, got one of {len(str(abs(value)))} digits")
-        return value
-    if isinstance(default, float):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise UserError(f"{where}.{key}: expected a number, got {value!r}")
-        try:
-            return float(value)
-        except OverflowError:   # an integer of hundreds of digits
-            raise UserError(f"{where}.{key}: expected a finite number, got an integer of "
-                            f"{len(str(abs(value)))} digits") from None
-    if isinstance(default, str):
-        if not isinstance(value, str):
-            raise UserError(f"{where}.{key}: expected a string, got {value!r}")
-        return value
-    raise AssertionError(f"unsupported field type for {key}")
+def _hardware_from(data: Any, where: str, base: ArchConfig) -> ArchConfig:
+    if isinstance(data, dict):
+        for section, values in data.items():
+            for key, value in (values.items() if isinstance(values, dict) else ()):
+                if f"{section}.{key}" in MOVED:
+                    raise moved_error(where, f"{section}.{key}", value)
+    return schema.build(ArchConfig, schema.merged(base, data) if isinstance(data, dict) else data, where)
 
 
 def arch_from_dict(data: dict[str, Any], where: str = "arch", base: ArchConfig | None = None) -> ArchConfig:
     """Build a validated ``ArchConfig`` from nested dicts, on top of ``base``."""
-    arch = dataclasses.replace(base) if base is not None else ArchConfig()
-    sections = {name: dataclasses.replace(getattr(arch, name)) for name in SECTION_NAMES}
-    for section, values in data.items():
-        if section not in sections:
-            raise unknown_key_error(where, section, SECTION_NAMES)
-        if not isinstance(values, dict):
-            raise UserError(f"{where}: [{section}] must be a table")
-        obj = sections[section]
-        known = {f.name: f for f in fields(obj)}
-        for key, value in values.items():
-            if key not in known:
-                raise unknown_key_error(f"{where}: [{section}]", key, known)
-            setattr(obj, key, _coerce(f"{where}: {section}", key, value, getattr(obj, key)))
-    return ArchConfig(**sections).validate(where)
+    return _hardware_from(data, where, base if base is not None else ArchConfig())
 
 
 def load_arch(path: str | Path | None = None, overrides: list[str] | None = None) -> ArchConfig:
-    """Load the shipped default, then ``path`` (if given), then ``--set`` overrides."""
+    """Load the shipped default, then ``path`` (if given), then hardware ``--set`` overrides."""
     arch = arch_from_dict(_read_toml(DEFAULT_ARCH_PATH), where=DEFAULT_ARCH_PATH.name)
     if path is not None:
         p = Path(path)
@@ -384,27 +247,171 @@ def load_arch(path: str | Path | None = None, overrides: list[str] | None = None
 
 
 def parse_override(text: str) -> tuple[str, str, Any]:
-    """Split ``section.key=value``; the value is read as a TOML literal, else a string."""
+    """Split ``section.key=value`` (``pass.clip.key=value`` for a clip plane) into (section, key, value);
+    the value is read as a TOML literal, else a string. The key of a clip plane is ``clip.KEY``."""
     if "=" not in text:
         raise UserError(f"--set {text}: expected section.key=value")
     path, raw = text.split("=", 1)
     parts = path.strip().split(".")
-    if len(parts) != 2 or not all(parts):
+    nested = len(parts) == 3 and parts[:2] == [PASS, "clip"]
+    if not (len(parts) == 2 or nested) or not all(parts):
         raise UserError(f"--set {text}: expected section.key=value, e.g. tile_traverser.tile_size=16")
     try:
         value = tomllib.loads(f"v = {raw.strip()}")["v"]
     except tomllib.TOMLDecodeError:
         value = raw.strip()
-    return parts[0], parts[1], value
+    return parts[0], ".".join(parts[1:]), value
 
 
-def apply_overrides(arch: ArchConfig, overrides: list[str]) -> ArchConfig:
-    """Apply ``--set`` overrides, each a dotted ``section.key=value``."""
+def _nest(values: dict[str, Any]) -> dict[str, Any]:
+    """``{"clip.t_hi": 0.3}`` -> ``{"clip": {"t_hi": 0.3}}``."""
+    out: dict[str, Any] = {}
+    for key, value in values.items():
+        *tables, name = key.split(".")
+        node = out
+        for t in tables:
+            node = node.setdefault(t, {})
+        node[name] = value
+    return out
+
+
+def _grouped(overrides: list[str], where: str) -> dict[str, dict[str, Any]]:
     data: dict[str, dict[str, Any]] = {}
     for text in overrides:
         section, key, value = parse_override(text)
+        if f"{section}.{key}" in MOVED:
+            raise moved_error(where, f"{section}.{key}", value)
         data.setdefault(section, {})[key] = value
+    return data
+
+
+def apply_overrides(arch: ArchConfig, overrides: list[str]) -> ArchConfig:
+    """Apply hardware ``--set`` overrides, each a dotted ``section.key=value``."""
+    data = _grouped(overrides, "--set")
+    for other in (PASS, SIMULATION):
+        if other in data:
+            raise UserError(f"--set {other}.{next(iter(data[other]))}: not hardware; pass it with the scene "
+                            "(pipeline_sim.config.apply_settings)")
     return arch_from_dict(data, where="--set", base=arch)
+
+
+def pass_state_from(data: Any, where: str, base: PassState | None = None) -> PassState:
+    """A validated :class:`PassState`: ``data`` (a ``[pass]`` table) over ``base``."""
+    base = base if base is not None else PassState()
+    return schema.build(PassState, schema.merged(base, data) if isinstance(data, dict) else data, where, (PASS,))
+
+
+def sim_options_from(data: Any, where: str, base: SimOptions | None = None) -> SimOptions:
+    """Validated :class:`SimOptions`: ``data`` (a ``[simulation]`` table) over ``base``."""
+    base = base if base is not None else SimOptions()
+    return schema.build(SimOptions, schema.merged(base, data) if isinstance(data, dict) else data, where,
+                        (SIMULATION,))
+
+
+def pass_settings(overrides: list[str], arch: ArchConfig | None = None, state: PassState | None = None,
+                  simulation: SimOptions | None = None, where: str = "--set") -> dict[str, Any]:
+    """``arch``, ``state`` and ``simulation`` (default: the shipped ones) with ``--set`` overrides of every
+    kind applied, as the keyword arguments of a ``RenderPass``: hardware ones to ``arch``, ``pass.*`` to the
+    pass state and ``simulation.*`` to the simulation options."""
+    data = _grouped(list(overrides), where)
+    state = state if state is not None else PassState()
+    simulation = simulation if simulation is not None else SimOptions()
+    if PASS in data:
+        state = pass_state_from(_nest(data.pop(PASS)), where, state)
+    if SIMULATION in data:
+        simulation = sim_options_from(data.pop(SIMULATION), where, simulation)
+    if arch is None:
+        arch = load_arch()
+    if data:
+        arch = arch_from_dict(data, where=where, base=arch)
+    return {"arch": arch, "state": state, "simulation": simulation}
+
+
+def apply_settings(scene: "Scene", arch: ArchConfig, overrides: list[str], where: str = "--set"
+                   ) -> tuple["Scene", ArchConfig]:
+    """Apply ``--set`` overrides of every kind (:func:`pass_settings`) to ``arch`` and to the scene's pass
+    state and simulation options."""
+    s = pass_settings(overrides, arch, scene.pass_state, scene.simulation, where)
+    return scene.replace(pass_state=s["state"], simulation=s["simulation"]), s["arch"]
+
+
+def check_compatible(arch: ArchConfig, state: PassState, where: str) -> None:
+    """The rules between the hardware and a pass's state."""
+    if arch.tile_test.algorithm == "interleave_uvt" and state.sample_pattern != "interleave":
+        raise UserError(f"{where}: tile_test.algorithm = 'interleave_uvt' needs pass.sample_pattern = "
+                        f"'interleave' (got '{state.sample_pattern}')")
+
+
+# --- what each setting can change -------------------------------------------------------------------
+
+def _declaration(cls: type, name: str) -> dict[str, Any]:
+    """The metadata of a setting, from the nearest class that declares it (a unit's own
+    default for ``throughput`` keeps :class:`UnitTiming`'s declaration)."""
+    for klass in cls.__mro__:
+        f = getattr(klass, "__dataclass_fields__", {}).get(name)
+        if f is not None and "effect" in f.metadata:
+            return dict(f.metadata)
+    raise AssertionError(f"{cls.__name__}.{name} declares no effect")
+
+
+def declarations(obj: Any, prefix: str = "") -> dict[str, dict[str, Any]]:
+    """``"path"`` -> the declaration (effect, reference, doc, value) of every setting of the settings
+    dataclass ``obj`` and the ones it holds, by dotted path under ``prefix``."""
+    out = {}
+    for f in fields(obj):
+        value = getattr(obj, f.name)
+        path = f"{prefix}{f.name}"
+        if dataclasses.is_dataclass(value):
+            out.update(declarations(value, path + "."))
+        else:
+            out[path] = {**_declaration(type(obj), f.name), "value": value}
+    return out
+
+
+def _all_declarations(arch: ArchConfig, state: PassState, sim: SimOptions) -> dict[str, dict[str, Any]]:
+    return {**declarations(arch), **declarations(state, PASS + "."), **declarations(sim, SIMULATION + ".")}
+
+
+@functools.cache
+def setting_effects() -> dict[str, str]:
+    """``"path"`` -> the declared effect, for every hardware (``section.key``), pass-state
+    (``pass.key``, ``pass.clip.key``) and simulation (``simulation.key``) setting."""
+    return {k: d["effect"] for k, d in _all_declarations(ArchConfig(), PassState(), SimOptions()).items()}
+
+
+def settings_of(arch: ArchConfig, state: PassState, sim: SimOptions, effects: tuple[str, ...]) -> dict[str, Any]:
+    """The values of the settings whose declared effect is among ``effects``, by path."""
+    return {k: d["value"] for k, d in _all_declarations(arch, state, sim).items() if d["effect"] in effects}
+
+
+def _reference_of(obj: Any, shipped: Any) -> Any:
+    """``obj`` with its ``image`` settings kept, each ``accuracy`` setting at its declared reference value
+    (else ``shipped``'s) and every other setting at ``shipped``'s."""
+    values = {}
+    for f in fields(obj):
+        mine, default = getattr(obj, f.name), getattr(shipped, f.name)
+        if dataclasses.is_dataclass(mine):
+            values[f.name] = _reference_of(mine, default)
+            continue
+        decl = _declaration(type(obj), f.name)
+        if decl["effect"] == IMAGE:
+            values[f.name] = mine
+        elif decl["effect"] == ACCURACY and decl["reference"] is not None:
+            values[f.name] = decl["reference"]
+        else:
+            values[f.name] = default
+    return dataclasses.replace(shipped, **values)
+
+
+def reference_setup(arch: ArchConfig | None, state: PassState | None) -> tuple[ArchConfig, PassState, SimOptions]:
+    """The hardware, pass state and simulation options of an accuracy reference for a run of ``arch`` and
+    ``state``: the settings declared to define the image kept, each ``accuracy`` setting at its declared
+    reference value (else the shipped default), and the ``counters`` and ``cycles`` settings, which cannot
+    change the image, at the shipped defaults."""
+    shipped = load_arch()
+    ref_arch = _reference_of(arch if arch is not None else shipped, shipped)
+    ref_state = _reference_of(state if state is not None else PassState(), PassState())
+    return ref_arch, ref_state, SimOptions()
 
 
 def _read_toml(path: Path) -> dict[str, Any]:
@@ -413,3 +420,4 @@ def _read_toml(path: Path) -> dict[str, Any]:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise UserError(f"{path.name}: malformed TOML: {exc}") from None
+

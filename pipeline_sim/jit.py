@@ -22,6 +22,7 @@ def warm_up() -> float:
         return 0.0
     from pipeline_sim.config import load_arch
     from pipeline_sim.draw import draw_from_clip
+    from pipeline_sim.pass_state import PassState
     from pipeline_sim.render import RenderPass, run_pass
 
     start = time.perf_counter()
@@ -30,7 +31,7 @@ def warm_up() -> float:
     lens = np.full((1, 3, 2), 0.05)
     draw = draw_from_clip(np.concatenate([q, q]), np.concatenate([r, q]), np.concatenate([lens, lens]),
                           np.concatenate([lens, lens]), width=16, height=16)
-    for overrides in ([], ["shading.mode='per_sample'"], ["pipeline.mode='conservative'"]):
-        run_pass(RenderPass(draw=draw, arch=load_arch(overrides=overrides), spp=4, seed=0))
+    for state in (PassState(), PassState(shading_mode="per_sample"), PassState(mode="conservative")):
+        run_pass(RenderPass(draw=draw, arch=load_arch(), state=state, spp=4, seed=0))
     _WARM = True
     return time.perf_counter() - start

@@ -6,34 +6,51 @@ z-cull boxes, bandwidth. A pass's state describes the work: its mode, depth
 function and write, blending, user clip planes, backface culling, sample
 pattern and shading mode. A workload of several passes gives each its own
 state on one architecture (as Timeloop keeps architecture, workload and
-mapping apart).
+mapping apart). A scene file sets it in its ``[pass]`` table (the clip
+planes in ``[pass.clip]``), ``--set pass.KEY=VALUE`` on top of that.
 
-Every field declares what it can change (``pipeline_sim.config.EFFECTS``),
-so that a sweep's accuracy reference and ``compare`` derive what they keep
-and what they reset from the declarations.
+Every field declares what it can change (``pipeline_sim.settings``), so
+that a sweep's accuracy reference and ``compare`` derive what they keep and
+what they reset from the declarations.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
-from pipeline_sim.settings import ACCURACY, IMAGE, setting
+from pipeline_sim.definitions import BLEND_MODES, DEPTH_FUNCS
+from pipeline_sim.errors import UserError
+from pipeline_sim.sampling import PATTERNS
+from pipeline_sim.settings import FORBID, ACCURACY, IMAGE, Flag, count, number, setting
+
+# a pass names a generated pattern; a sample table comes with the pass itself (RenderPass.sample_table)
+SAMPLE_PATTERNS = tuple(p for p in PATTERNS if p != "table")
+Time = number(0.0, 1.0)
+Lens = number(-1.0, 1.0)
 
 
 @dataclass(frozen=True)
 class ClipPlanes:
     """Axis-aligned user clip planes on t, u and v (Nilsson12 §2): samples outside are never covered."""
 
-    t_lo: float = setting(0.0, IMAGE)
-    t_hi: float = setting(1.0, IMAGE)
-    u_lo: float = setting(-1.0, IMAGE)
-    u_hi: float = setting(1.0, IMAGE)
-    v_lo: float = setting(-1.0, IMAGE)
-    v_hi: float = setting(1.0, IMAGE)
+    __pydantic_config__ = FORBID
+
+    t_lo: Time = setting(0.0, IMAGE, "lowest shutter time t a sample may have to be covered")
+    t_hi: Time = setting(1.0, IMAGE, "highest shutter time t")
+    u_lo: Lens = setting(-1.0, IMAGE, "lowest lens coordinate u")
+    u_hi: Lens = setting(1.0, IMAGE, "highest lens coordinate u")
+    v_lo: Lens = setting(-1.0, IMAGE, "lowest lens coordinate v")
+    v_hi: Lens = setting(1.0, IMAGE, "highest lens coordinate v")
+
+    def check(self, where: str) -> None:
+        for axis in "tuv":
+            lo, hi = getattr(self, f"{axis}_lo"), getattr(self, f"{axis}_hi")
+            if lo > hi:
+                raise UserError(f"{where}.{axis}_lo/{axis}_hi: need {axis}_lo <= {axis}_hi, got [{lo}, {hi}]")
 
     def as_array(self) -> np.ndarray:
         """(t_lo, t_hi, u_lo, u_hi, v_lo, v_hi), as the tile test reads them."""
@@ -44,16 +61,30 @@ class ClipPlanes:
 class PassState:
     """The state of one render pass (docs/pipeline.md §2): everything but the hardware."""
 
-    mode: str = setting("standard", ACCURACY, reference="standard")
-    depth_test: str = setting("less", IMAGE)
-    depth_write: bool = setting(True, IMAGE)
-    blend: str = setting("replace", IMAGE)
-    backface_culling: bool = setting(False, IMAGE)
+    __pydantic_config__ = FORBID
+
+    mode: Literal["standard", "conservative"] = setting(
+        "standard", ACCURACY, "`conservative`: 1x1 tiles, one sample and one shader execution per covered pixel "
+        "(Nilsson12 §2)", reference="standard")
+    depth_test: Literal[DEPTH_FUNCS] = setting(
+        "less", IMAGE, "the ROP's depth function")
+    depth_write: Flag = setting(True, IMAGE, "the ROP writes the depth of a sample that passes")
+    blend: Literal[BLEND_MODES] = setting("replace", IMAGE, "how the ROP combines a "
+                                                             "passing sample's colour with the stored one")
+    backface_culling: Flag = setting(False, IMAGE, "drop triangles facing away at every (t, u, v) "
+                                     "(conservative for moving and defocused triangles)")
     clip: ClipPlanes = field(default_factory=ClipPlanes)
-    sample_pattern: str = setting("net", ACCURACY, reference="net")
-    interleave_tuples: int = setting(64, ACCURACY)
-    shading_mode: str = setting("cache", ACCURACY, reference="per_sample")
-    shading_rate: float = setting(1.0, ACCURACY)
+    sample_pattern: Literal[SAMPLE_PATTERNS] = setting(
+        "net", ACCURACY, "`net`: the t-ordered (0, m, 3)-net of Munkberg11 §5; `sobol`, `stratified`, `random`; "
+        "all scrambled per pixel; `interleave`: each pixel takes spp of a fixed set of (u, v, t) tuples",
+        reference="net")
+    interleave_tuples: count(1, 64) = setting(64, ACCURACY, "size of that fixed set (one bit each in a tile's "
+                                              "mask), a multiple of spp")
+    shading_mode: Literal["cache", "per_sample"] = setting(
+        "cache", ACCURACY, "`cache`: memoized, decoupled shading; `per_sample`: one shader execution per "
+        "covered sample", reference="per_sample")
+    # a shading-grid cell from 1/64 of a pixel to 1024 pixels: the grid's cell index stays an int64
+    shading_rate: number(1 / 64, 1024.0) = setting(1.0, ACCURACY, "shading-grid cell size in pixels")
 
     @property
     def conservative(self) -> bool:
@@ -64,16 +95,3 @@ class PassState:
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
-
-
-def pass_state_of(arch) -> PassState:
-    """The pass state an architecture file still carries (its ``image`` and ``accuracy`` settings of a
-    pass: mode, sample pattern, backface culling, clip planes, depth and blend, shading mode)."""
-    tt = arch.tile_test
-    return PassState(
-        mode=arch.pipeline.mode, depth_test=arch.rop.depth_test, depth_write=arch.rop.depth_write,
-        blend=arch.rop.blend, backface_culling=arch.triangle_setup.backface_culling,
-        clip=ClipPlanes(tt.clip_t_lo, tt.clip_t_hi, tt.clip_u_lo, tt.clip_u_hi, tt.clip_v_lo, tt.clip_v_hi),
-        sample_pattern=arch.pipeline.sample_pattern, interleave_tuples=arch.pipeline.interleave_tuples,
-        shading_mode=arch.shading.mode, shading_rate=arch.shading.shading_rate,
-    )

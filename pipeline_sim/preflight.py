@@ -1,15 +1,16 @@
 """What a run would refuse, refused before it starts: one validation for every command.
 
 ``check``, ``run`` and ``compare`` call :func:`validate_run` right after the
-scene and the architecture are loaded, and a sweep calls :func:`check_point`
-for every point while its file is read: all of it before a numba kernel is
+scene (with its pass state and simulation options) and the architecture are
+loaded, and a sweep calls :func:`check_point` for every point while its file is read: all of it before a numba kernel is
 loaded or compiled, so ``check`` accepts exactly what ``run`` runs, and a
 refusal is one line (a :class:`~pipeline_sim.errors.UserError`) within a
 second or two. Checked:
 
 * the samples: the sample pattern's rule on spp (a power of two for ``net``
-  and ``sobol``; at most, and a divisor of, ``pipeline.interleave_tuples``
-  for ``interleave``); the image limits themselves are the scene loader's
+  and ``sobol``; at most, and a divisor of, ``pass.interleave_tuples``
+  for ``interleave``), and the rules between the hardware and the pass state
+  (:func:`pipeline_sim.config.check_compatible`); the image limits themselves are the scene loader's
   (:func:`pipeline_sim.scene.check_image_value`), applied to overrides too;
 * the geometry: :func:`~pipeline_sim.draw.build_draw` (the scene has
   triangles; coordinates stay within the float32 range the pipeline
@@ -19,7 +20,7 @@ second or two. Checked:
 
 The memory a run takes is the sum of terms, each from the settings: the
 per-triangle tables (the draw and triangle setup's constants); the samples
-and multisample buffers of one screen region (``pipeline.region_samples``
+and multisample buffers of one screen region (``simulation.region_samples``
 caps them); the work in flight between units (a triangle batch's tiles, a
 tile batch's covered samples); z-cull's boxes over the whole frame; the
 shading cache; the resolved image with the files written from it; and a
@@ -38,10 +39,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from pipeline_sim.config import ArchConfig
+from pipeline_sim.config import ArchConfig, check_compatible
 from pipeline_sim.errors import UserError
+from pipeline_sim.pass_state import PassState
 from pipeline_sim.regions import plan_regions, row_step
 from pipeline_sim.sampling import check_spp
+from pipeline_sim.simulation import SimOptions
 
 if TYPE_CHECKING:
     from pipeline_sim.draw import Draw
@@ -106,25 +109,25 @@ def _gib(n: float) -> str:
     return f"{n / GIB:.1f} GiB" if n >= GIB / 10 else f"{n / (1 << 20):.0f} MiB"
 
 
-def estimate_memory(width: int, height: int, spp: int, triangles: int, arch: ArchConfig, *,
+def estimate_memory(width: int, height: int, spp: int, triangles: int, arch: ArchConfig,
+                    state: PassState = PassState(), sim: SimOptions = SimOptions(), *,
                     images: int = 1) -> MemoryEstimate:
     """An upper bound of the memory a run of these settings adds to the process,
     holding ``images`` resolved images at once (``compare`` keeps one per algorithm)."""
-    conservative = arch.pipeline.mode == "conservative"
+    conservative = state.conservative
     ts = 1 if conservative else arch.tile_traverser.tile_size
     spp = 1 if conservative else spp
-    cached = arch.shading.mode == "cache" and not conservative
-    step = row_step(ts, arch.tile_traverser.coarse_factor, arch.shading.shading_rate if cached else None)
-    plan = plan_regions(width, height, spp, arch.pipeline.region_samples, step)
+    cached = state.shading_mode == "cache" and not conservative
+    step = row_step(ts, arch.tile_traverser.coarse_factor, state.shading_rate if cached else None)
+    plan = plan_regions(width, height, spp, sim.region_samples, step)
     rows = min(plan.rows, height)
     region_samples = rows * width * spp
     region_tiles = math.ceil(rows / ts) * math.ceil(width / ts)
-    pcfg = arch.pipeline
     # in flight: one triangle batch's tile records, each of its triangles
     # reaching at most every tile of the region; one tile batch's covered
     # samples, at most its tiles' samples and at most a region's
-    tiles = min(pcfg.triangles_per_batch, max(triangles, 1)) * region_tiles * BYTES["tile_record"]
-    samples = min(pcfg.tiles_per_batch * ts * ts * spp, region_samples) * BYTES["sample_record"]
+    tiles = min(sim.triangles_per_batch, max(triangles, 1)) * region_tiles * BYTES["tile_record"]
+    samples = min(sim.tiles_per_batch * ts * ts * spp, region_samples) * BYTES["sample_record"]
     # z-cull's boxes cover the whole frame, as many per tile as motion and a
     # lens may need (the estimate does not know yet whether the draw has them)
     boxes = arch.zcull.time_slices * arch.zcull.lens_boxes**2
@@ -185,11 +188,11 @@ def available_memory() -> int:
     return max(0, min(room))
 
 
-def check_samples(spp: int, arch: ArchConfig, where: str) -> None:
+def check_samples(spp: int, state: PassState, where: str) -> None:
     """The sample pattern's rule on ``spp`` (not applied in conservative mode,
     which takes one sample per pixel)."""
-    if arch.pipeline.mode != "conservative":
-        check_spp(arch.pipeline.sample_pattern, spp, arch.pipeline.interleave_tuples, where)
+    if not state.conservative:
+        check_spp(state.sample_pattern, spp, state.interleave_tuples, where)
 
 
 def check_memory(estimate: MemoryEstimate, where: str, what: str) -> None:
@@ -202,32 +205,34 @@ def check_memory(estimate: MemoryEstimate, where: str, what: str) -> None:
 
 def check_point(scene: Scene, arch: ArchConfig, where: str, *, images: int = 1,
                 reference_spp: int | None = None) -> None:
-    """Everything but the geometry: the samples and the memory of a run of
-    ``scene``'s image settings with ``arch`` holding ``images`` resolved images
-    (and of its reference rendered at ``reference_spp``, if given)."""
-    from pipeline_sim.config import reference_arch
+    """Everything but the geometry: the hardware against the pass state, the samples and the memory of a
+    run of ``scene``'s image settings, pass state and simulation options with ``arch`` holding ``images``
+    resolved images (and of its reference rendered at ``reference_spp``, if given)."""
+    from pipeline_sim.config import reference_setup
 
     img = scene.image
-    check_samples(img.spp, arch, where)
-    runs = [(img.spp, arch, f"a {img.width}x{img.height} frame at {img.spp} spp")]
+    check_compatible(arch, scene.pass_state, where)
+    check_samples(img.spp, scene.pass_state, where)
+    runs = [(img.spp, (arch, scene.pass_state, scene.simulation),
+             f"a {img.width}x{img.height} frame at {img.spp} spp")]
     if reference_spp is not None:
-        runs.append((reference_spp, reference_arch(arch), f"the reference at {reference_spp} spp"))
-    for spp, a, what in runs:
-        estimate = estimate_memory(img.width, img.height, spp, scene.triangle_count, a, images=images)
+        runs.append((reference_spp, reference_setup(arch, scene.pass_state), f"the reference at {reference_spp} spp"))
+    for spp, setup, what in runs:
+        estimate = estimate_memory(img.width, img.height, spp, scene.triangle_count, *setup, images=images)
         check_memory(estimate, where, f"{what} of {scene.triangle_count:,} triangles")
 
 
-def validate_run(scene: Scene, archs: Sequence[ArchConfig], where: str, *,
+def validate_run(runs: Sequence[tuple[Scene, ArchConfig]], where: str, *,
                  reference_spp: int | None = None) -> Draw:
-    """Refuse (a :class:`UserError` naming ``where``) what a run of ``scene``
-    with each of ``archs`` (one per render: ``compare`` has one per algorithm)
-    would refuse later; return the draw it renders."""
+    """Refuse (a :class:`UserError` naming ``where``) what each of ``runs`` (a scene with its pass state
+    and simulation options, and the hardware; one per render: ``compare`` has one per algorithm) would
+    refuse later; return the draw they render (the first's: the runs share the scene's geometry)."""
     from pipeline_sim.draw import build_draw
 
-    images = len(archs) + (reference_spp is not None)
-    for i, arch in enumerate(archs):
+    images = len(runs) + (reference_spp is not None)
+    for i, (scene, arch) in enumerate(runs):
         check_point(scene, arch, where, images=images, reference_spp=reference_spp if i == 0 else None)
-    return build_draw(scene)
+    return build_draw(runs[0][0])
 
 
 __all__ = ["BYTES", "FIXED_BYTES", "MemoryEstimate", "available_memory", "check_memory", "check_point",

@@ -2,7 +2,7 @@
 
 Samples and per-sample buffers scale with pixels x spp (a 1920x1080 frame at
 16 spp holds 33 million samples), so a large frame is not materialized at
-once. It is cut into regions of whole rows (``pipeline.region_samples``
+once. It is cut into regions of whole rows (``simulation.region_samples``
 samples at most, rounded down to whole coarse-tile rows), and the pipeline
 is fed region-major, as a binning (sort-middle) front end would feed it:
 region 0's triangles in submission order, then region 1's, and so on. The

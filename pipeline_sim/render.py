@@ -22,16 +22,17 @@ from typing import Any, Callable, Sequence
 import numpy as np
 import pandas as pd
 
-from pipeline_sim.config import ArchConfig, PipelineConfig
+from pipeline_sim.config import ArchConfig
 from pipeline_sim.counters import CounterSet, counters_frame
 from pipeline_sim.draw import Draw, build_draw, merge_draws
 from pipeline_sim.errors import UserError
-from pipeline_sim.pass_state import PassState, pass_state_of
+from pipeline_sim.pass_state import PassState
 from pipeline_sim.pipeline import Stage, TimingResult, chunks, count_records, cycles_for, run_in_order, simulate
 from pipeline_sim.regions import (RegionBatch, RegionCursor, RegionPlan, RegionSamples, bin_triangles, plan_regions,
                                   region_step, row_step)
 from pipeline_sim.sampling import make_samples
 from pipeline_sim.shaders import standard_params, standard_shader
+from pipeline_sim.simulation import SimOptions
 from pipeline_sim.targets import AppendBuffer, AppendResult, ShaderOutput, Target, check_targets
 from units.rop import Rop
 from units.sample_tester import EV_2D, EV_PIXELS, TEST_OPS_MADD, TEST_OPS_MUL, SampleTester
@@ -66,7 +67,8 @@ SAMPLE_RECORD_BYTES = 28
 
 @dataclass
 class RenderPass:
-    """One pass: its draws, the architecture, sampling, the shader to run and the targets it writes.
+    """One pass: its draws, the architecture, its state, sampling, the shader to run, the targets it writes
+    and the simulation options.
 
     ``draw``: one draw or several, run in submission order, each with its own clip planes
     (``Draw.clip``) and query; ``outputs``: the shader's named outputs; ``targets``: the render targets
@@ -78,7 +80,7 @@ class RenderPass:
     draw: Draw | Sequence[Draw]
     arch: ArchConfig
     spp: int
-    state: PassState | None = None  # None: the state the architecture file carries (pass_state_of)
+    state: PassState = field(default_factory=PassState)
     seed: int = 0
     name: str = "main"
     shader: Callable = standard_shader
@@ -91,10 +93,7 @@ class RenderPass:
     clear_depth: float = 1.0
     sample_table: np.ndarray | None = None  # given: the pass samples it (pattern "table")
     zcull_refresh: str = "timed"  # one of ZCULL_REFRESH
-
-    def __post_init__(self) -> None:
-        if self.state is None:
-            self.state = pass_state_of(self.arch)
+    simulation: SimOptions = field(default_factory=SimOptions)
 
 
 @dataclass
@@ -141,7 +140,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
              progress: Callable[[int, int], None] | None = None, keep_depth: bool = False) -> PassResult:
     """Simulate one pass and return its image, counters and timing.
 
-    A frame of more than ``pipeline.region_samples`` samples is rendered in
+    A frame of more than ``simulation.region_samples`` samples is rendered in
     screen regions (``pipeline_sim.regions``); then its per-sample depth is
     kept only with ``keep_depth``.
     """
@@ -172,7 +171,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
 
     cached_shading = state.shading_mode == "cache" and not conservative
     step = row_step(ts, arch.tile_traverser.coarse_factor, state.shading_rate if cached_shading else None)
-    plan = plan_regions(draw.width, draw.height, spp, arch.pipeline.region_samples, step)
+    plan = plan_regions(draw.width, draw.height, spp, p.simulation.region_samples, step)
     samples = RegionSamples(plan, region_samples)
     first = samples.region(0)
     algorithm = arch.tile_test.algorithm
@@ -209,7 +208,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
                           region=0)
     cs = {u.name: CounterSet(u.name, u.events, u.timing_dependent)
           for u in (setup, traverser, tile_test, zcull, tester, shading, rop)}
-    pcfg = arch.pipeline
+    pcfg, sim = arch.pipeline, p.simulation
     done = [0]
     set_up = np.zeros(draw.n, np.bool_)  # per triangle: set up (in an earlier region's batch or this one)
     presetup = plan.count > 1  # several regions: triangles are set up before binning
@@ -249,7 +248,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         c.add_ops(ops), c.add_events(ev), count_records(c, len(ids), n)
         c.add("bytes_written", n * TILE_RECORD_BYTES)
         cfg = arch.tile_traverser
-        return ([RegionBatch(batch.region, part) for part in chunks(out, pcfg.tiles_per_batch)],
+        return ([RegionBatch(batch.region, part) for part in chunks(out, sim.tiles_per_batch)],
                 cycles_for(ev[0] + n, cfg.throughput, cfg.instances))
 
     def step_tile_test(tiles):
@@ -284,7 +283,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         # throughput counts 5D tests; a test of fewer dimensions takes its share
         # of a 5D test's arithmetic, a visited pixel one slot (its range lookup)
         work = float(np.dot(ev[EV_2D:EV_2D + 4], TEST_WEIGHTS)) + ev[EV_PIXELS]
-        return chunks(out, pcfg.samples_per_batch), cycles_for(work, cfg.throughput, cfg.instances)
+        return chunks(out, sim.samples_per_batch), cycles_for(work, cfg.throughput, cfg.instances)
 
     def step_shade(batch):
         out, ops, ev = shading.run(batch)
@@ -362,14 +361,14 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
             kept[out] = True
             c.add_ops(ops), c.add_events(ev)
     bins = bin_triangles(setup.table.bounds, ids, plan)
-    tpb = pcfg.triangles_per_batch
+    tpb = sim.triangles_per_batch
     # a batch never spans two draws (each has its own clip planes)
     tri_batches = [RegionBatch(r, part[i : i + tpb]) for r, b in enumerate(bins)
                    for part in np.split(b, np.flatnonzero(np.diff(tri_draw[b])) + 1)
                    for i in range(0, len(part), tpb)]
     # FIFOs hold queue_depth batches of the shipped default size, counted in
     # records: a batch size then sets only the granularity of the timing
-    default = PipelineConfig()
+    default = SimOptions()
     per_kind = {"triangles": default.triangles_per_batch, "tiles": default.tiles_per_batch,
                 "samples": default.samples_per_batch}
     capacities = [pcfg.queue_depth * per_kind[INPUT_KIND[st.name]] for st in stages]
@@ -450,13 +449,14 @@ def run_passes(passes: list[RenderPass], progress=None) -> dict[str, PassResult]
 
 
 def scene_pass(scene, arch: ArchConfig, **overrides) -> RenderPass:
-    """The standard single pass of a scene: its draw (built here unless ``draw`` is given), light and
-    background."""
+    """The standard single pass of a scene: its draw (built here unless ``draw`` is given), light,
+    background, pass state and simulation options."""
     bg = tuple(float(c) for c in scene.background) + (1.0,)
     if overrides.get("draw") is None:
         overrides["draw"] = build_draw(scene)
     kw: dict[str, Any] = dict(arch=arch, spp=scene.image.spp, seed=scene.image.seed,
-                              params=standard_params(scene.light), clear_color=bg)
+                              params=standard_params(scene.light), clear_color=bg, state=scene.pass_state,
+                              simulation=scene.simulation)
     kw.update(overrides)
     return RenderPass(**kw)
 

@@ -608,9 +608,9 @@ def check_spp(pattern: str, spp: int, interleave_tuples: int, where: str = "") -
     prefix = f"{where}: " if where else ""
     if pattern in ("net", "sobol") and spp & (spp - 1):
         raise UserError(f"{prefix}spp = {spp} must be a power of two for the '{pattern}' sample pattern "
-                        "(pipeline.sample_pattern)")
+                        "(pass.sample_pattern)")
     if pattern == "interleave" and (spp > interleave_tuples or interleave_tuples % spp):
-        raise UserError(f"{prefix}spp = {spp} must divide pipeline.interleave_tuples = {interleave_tuples} for "
+        raise UserError(f"{prefix}spp = {spp} must divide pass.interleave_tuples = {interleave_tuples} for "
                         "the 'interleave' sample pattern")
 
 

@@ -86,6 +86,15 @@ Format
     [objects.close]              # optional transform at shutter close; each
     translate = [0.6, 0.5, 0.0]  # key missing here takes its `open` value
 
+    [pass]                       # optional: the pass state (pipeline_sim.pass_state),
+    depth_test = "less"          # every key of PassState, defaults as shown in
+    shading_mode = "cache"       # docs/scene-format.md
+    [pass.clip]                  # optional user clip planes
+    t_hi = 1.0
+
+    [simulation]                 # optional: batch sizes and screen regions
+    region_samples = 4194304     # (pipeline_sim.simulation.SimOptions)
+
 Exactly one of ``primitive`` and ``mesh`` is required. Primitives, all
 centred on the object-space origin, with their parameters and defaults:
 
@@ -129,13 +138,16 @@ import re
 import tomllib
 import warnings
 from collections.abc import Callable, Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from .config import pass_state_from, sim_options_from
 from .errors import UserError, did_you_mean, read_input_text, unknown_key_error
+from .pass_state import PassState
+from .simulation import SimOptions
 
 __all__ = [
     "ImageSettings",
@@ -452,6 +464,8 @@ class Scene:
     objects: tuple[SceneObject, ...]
     path: Path | None = None
     digest: str = ""
+    pass_state: PassState = field(default_factory=PassState)  # the [pass] table
+    simulation: SimOptions = field(default_factory=SimOptions)  # the [simulation] table
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "background", _readonly(self.background, np.float32, (3,)))
@@ -1595,7 +1609,7 @@ def _parse_objects(r: _Reader, data: dict, base_dir: Path) -> tuple[tuple[SceneO
     return tuple(objects), mesh_bytes
 
 
-_TOP_LEVEL_KEYS = ("image", "camera", "background", "light", "objects")
+_TOP_LEVEL_KEYS = ("image", "camera", "background", "light", "objects", "pass", "simulation")
 
 
 def _parse(data: dict, where: str, base_dir: Path, source: bytes | None, path: Path | None) -> Scene:
@@ -1608,6 +1622,8 @@ def _parse(data: dict, where: str, base_dir: Path, source: bytes | None, path: P
     background = _parse_background(r, data)
     light = _parse_light(r, data)
     objects, mesh_bytes = _parse_objects(r, data, base_dir)
+    pass_state = pass_state_from(data.get("pass", {}), where)
+    simulation = sim_options_from(data.get("simulation", {}), where)
 
     h = hashlib.sha256()
     if source is None:
@@ -1623,6 +1639,8 @@ def _parse(data: dict, where: str, base_dir: Path, source: bytes | None, path: P
         objects=objects,
         path=path,
         digest=h.hexdigest(),
+        pass_state=pass_state,
+        simulation=simulation,
     )
 
 

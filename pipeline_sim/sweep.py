@@ -18,7 +18,9 @@ A sweep file is TOML. Paths in it are relative to the sweep file itself:
 
     [grid]                                    # cartesian product of every key's values
     "image.spp" = [1, 4, 16]                  # image.width / height / spp / seed override the scene's [image]
-    "tile_traverser.tile_size" = [8, 16]      # any architecture setting by its dotted path
+    "tile_traverser.tile_size" = [8, 16]      # any hardware setting by its dotted path,
+    "pass.shading_mode" = ["cache", "per_sample"]  # the pass state (pass.KEY, pass.clip.KEY)
+    "simulation.tiles_per_batch" = [256, 512] # and the simulation options (simulation.KEY)
 
     [[zip]]                                   # zero or more groups: equal-length lists varied together
     "shading.cache_entries" = [256, 1024]
@@ -81,8 +83,8 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 import pandas as pd
-import tomli_w
 
+from pipeline_sim.config import literal as toml_literal
 from pipeline_sim.errors import UserError, did_you_mean, read_input_text, unknown_key_error
 from pipeline_sim.output import atomic_write_text
 from pipeline_sim.output_folder import OutputFolder, check_writable_folder, clean_leftovers
@@ -158,19 +160,12 @@ def point_id(params: dict[str, Any]) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:_ID_LENGTH]
 
 
-def toml_literal(value: Any) -> str:
-    """``value`` written as a TOML literal (the right-hand side of ``--set``), by tomli_w."""
-    if not isinstance(value, (bool, int, float, str)):
-        raise TypeError(f"not a TOML scalar: {value!r}")
-    return tomli_w.dumps({"v": value}).split("=", 1)[1].strip()
-
-
 def _describe(params: dict[str, Any]) -> str:
     return ", ".join(f"{k}={toml_literal(v)}" for k, v in params.items()) or "(no settings)"
 
 
 def _split_params(params: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
-    """(image settings, architecture ``--set`` overrides) of a point."""
+    """(image settings, ``--set`` overrides of the hardware, pass state and simulation options) of a point."""
     image = {k.split(".", 1)[1]: v for k, v in params.items() if k.startswith("image.")}
     overrides = [f"{k}={toml_literal(v)}" for k, v in params.items() if not k.startswith("image.")]
     return image, overrides
@@ -191,23 +186,26 @@ def _file_digest(path: Path) -> str:
 
 
 def _check_setting_path(where: str, key: str) -> None:
-    from pipeline_sim.config import SECTION_NAMES, ArchConfig
+    """``key`` names a setting: ``image.KEY``, a hardware ``SECTION.KEY``, ``pass.KEY``, ``pass.clip.KEY`` or
+    ``simulation.KEY`` (a setting that moved out of the architecture file says where it is now)."""
+    from pipeline_sim.config import MOVED, moved_error, setting_effects
 
+    if key in MOVED:
+        raise moved_error(where, key, varied=True)
+    paths = {*setting_effects(), *(f"image.{k}" for k in IMAGE_KEYS)}
+    if key in paths:
+        return
     parts = key.split(".")
-    if len(parts) != 2 or not all(parts):
+    if len(parts) < 2 or not all(parts):
         raise UserError(f"{where}: '{key}' is not a setting path (expected section.key, "
-                        "e.g. tile_traverser.tile_size or image.spp)")
-    section, name = parts
-    sections = ("image", *SECTION_NAMES)
-    if section not in sections:
-        raise UserError(f"{where}: unknown section '{section}' in '{key}'{did_you_mean(section, sections)}; "
-                        f"known sections: {', '.join(sections)}")
-    if section == "image":
-        known: tuple[str, ...] = IMAGE_KEYS
-    else:
-        known = tuple(f.name for f in dataclasses.fields(getattr(ArchConfig(), section)))
-    if name not in known:
-        raise unknown_key_error(f"{where}: [{section}]", name, known)
+                        "e.g. tile_traverser.tile_size, pass.depth_test or image.spp)")
+    table = ".".join(parts[:-1])
+    tables = sorted({p.rsplit(".", 1)[0] for p in paths})
+    if table not in tables:
+        raise UserError(f"{where}: unknown section '{table}' in '{key}'{did_you_mean(table, tables)}; "
+                        f"known sections: {', '.join(tables)}")
+    known = sorted(p.rsplit(".", 1)[1] for p in paths if p.rsplit(".", 1)[0] == table)
+    raise unknown_key_error(f"{where}: [{table}]", parts[-1], known)
 
 
 def _read_sweep_toml(path: Path, where: str) -> dict[str, Any]:
@@ -250,7 +248,7 @@ def load_sweep(path: str | Path) -> SweepSpec:
     architecture or image; nothing is run.
     """
     from pipeline_sim.accuracy import METRICS, ReferenceSpec
-    from pipeline_sim.config import apply_overrides, arch_from_dict, load_arch, parse_override
+    from pipeline_sim.config import apply_settings, load_arch, parse_override
     from pipeline_sim.draw import build_draw
     from pipeline_sim.preflight import check_point
     from pipeline_sim.scene import check_image_value, load_scene
@@ -279,8 +277,8 @@ def load_sweep(path: str | Path) -> SweepSpec:
     if not scene_path.is_file():
         raise UserError(f"{where}: sweep.scene: scene file '{scene_text}' not found (resolved to '{scene_path}')")
     try:
-        scene = load_scene(scene_path)
-        build_draw(scene)  # the geometry's own checks, once: points change the image, not the objects
+        loaded = load_scene(scene_path)
+        build_draw(loaded)  # the geometry's own checks, once: points change the image, not the objects
     except UserError as exc:
         raise UserError(f"{where}: sweep.scene: {exc}") from None
 
@@ -309,7 +307,7 @@ def load_sweep(path: str | Path) -> SweepSpec:
     except UserError as exc:
         raise UserError(f"{where}: sweep.arch: {exc}") from None
     try:
-        base = apply_overrides(base, list(fixed))
+        scene, base = apply_settings(loaded, base, list(fixed))
     except UserError as exc:
         raise UserError(f"{where}: sweep.set: {exc}") from None
 
@@ -352,13 +350,13 @@ def load_sweep(path: str | Path) -> SweepSpec:
         if key in owner:
             raise UserError(f"{loc}: '{key}' is already varied in {owner[key]}")
         owner[key] = table
-        section, name = key.split(".")
+        section, name = key.split(".", 1)
         for v in values:
             if section == "image":
                 check_image_value(name, v, f"{loc} = {toml_literal(v)}")
                 continue
             try:
-                arch_from_dict({section: {name: v}}, where="--set", base=base)
+                apply_settings(scene, base, [f"{key}={toml_literal(v)}"])
             except UserError as exc:
                 alone_errors[(key, json.dumps(v))] = (table, str(exc))
 
@@ -400,19 +398,19 @@ def load_sweep(path: str | Path) -> SweepSpec:
             raise UserError(f"{gloc}: a combination of values is listed twice")
         axes.append((tuple(keys), tuples))
 
-    # points: every point's architecture built now, exactly as run_point builds it, and
+    # points: every point's settings applied now, exactly as run_point applies them, and
     # its samples and memory checked as `run` checks them
     points: list[dict[str, Any]] = []
-    archs: dict[tuple[str, ...], Any] = {}
+    setups: dict[tuple[str, ...], Any] = {}
     reference_spp = reference.spp if reference.kind == "pipeline" else 1
     for combo in itertools.product(*(values for _, values in axes)):
         params: dict[str, Any] = {}
         for (keys, _), values in zip(axes, combo):
             params.update(zip(keys, values))
         image, overrides = _split_params(params)
-        if tuple(overrides) not in archs:
+        if tuple(overrides) not in setups:
             try:
-                archs[tuple(overrides)] = load_arch(arch_path, list(fixed) + overrides)
+                setups[tuple(overrides)] = apply_settings(loaded, load_arch(arch_path), list(fixed) + overrides)
             except UserError as exc:
                 for k, v in params.items():  # blame one key when it alone gives this error
                     table, msg = alone_errors.get((k, json.dumps(v)), ("", ""))
@@ -420,7 +418,8 @@ def load_sweep(path: str | Path) -> SweepSpec:
                         raise UserError(f"{where}: {table} {k} = {toml_literal(v)}: "
                                         f"{msg.removeprefix('--set: ')}") from None
                 raise UserError(f"{where}: point {_describe(params)}: {exc}") from None
-        check_point(scene.replace(image=dataclasses.replace(scene.image, **image)), archs[tuple(overrides)],
+        point_scene, point_arch = setups[tuple(overrides)]
+        check_point(point_scene.replace(image=dataclasses.replace(scene.image, **image)), point_arch,
                     f"{where}: point {_describe(params)}", reference_spp=reference_spp)
         points.append(params)
 
@@ -513,8 +512,8 @@ def _run_point(spec: dict[str, Any], params: dict[str, Any], out: Path,
     compile_s = warm_up()
     image_params, overrides = _split_params(params)
     overrides = list(spec["set"]) + overrides
-    arch = load_arch(spec["arch"], overrides)
-    workload = load_workload(spec["scene"], arch, image_params)
+    workload = load_workload(spec["scene"], load_arch(spec["arch"]), image_params).with_settings(overrides)
+    arch = workload.arch
     run = workload.run()
     result = run.total()
 
@@ -544,6 +543,7 @@ def _run_point(spec: dict[str, Any], params: dict[str, Any], out: Path,
         "arch_file": spec["arch"],
         "set": overrides,
         "arch": arch.to_dict(),
+        **({"pass": scene.pass_state.to_dict(), "simulation": scene.simulation.to_dict()} if scene is not None else {}),
         "reference": spec["reference"],
         "metrics": metrics,
         "summary": summary,

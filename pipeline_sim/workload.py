@@ -100,6 +100,7 @@ class Workload:
         self.path = Path(path)
         self.arch = arch
         self.pass_options: dict[str, Any] = {}
+        self.settings: list[str] = []  # the ``pass.*`` and ``simulation.*`` settings of every pass
         self.states: list[Any] = []  # every pass run, as run (RenderPass), for run.json
 
     @classmethod
@@ -109,9 +110,10 @@ class Workload:
         checked); a kind that has no such setting refuses them with one line."""
         raise NotImplementedError
 
-    def check(self, archs: list[ArchConfig] | None = None, *, reference_spp: int | None = None) -> str:
-        """Refuse (one line) what a run on each of ``archs`` (default: its own) would refuse later,
-        before any kernel loads; return a one-line summary."""
+    def check(self, variants: list["Workload"] | None = None, *, reference_spp: int | None = None) -> str:
+        """Refuse (one line) what a run of each of ``variants`` (itself with other settings, from
+        :meth:`with_settings`; default: itself alone) would refuse later, before any kernel loads;
+        return a one-line summary."""
         return f"kind {self.kind}"
 
     def run(self, progress: Progress = None) -> WorkloadResult:
@@ -133,22 +135,47 @@ class Workload:
         or None when the kind has no single image to measure."""
         return None
 
-    def on(self, arch: ArchConfig) -> "Workload":
-        """The same workload on another architecture (``compare``: one per algorithm), nothing run."""
+    def with_settings(self, overrides: list[str], where: str = "--set") -> "Workload":
+        """The same workload with ``--set`` settings, nothing run: hardware ones on its architecture,
+        ``pass.*`` and ``simulation.*`` ones on every pass it runs (``compare``: one per algorithm)."""
+        from pipeline_sim.config import pass_settings
+
         other = copy.copy(self)
-        other.arch = arch
+        other.arch = pass_settings(overrides, self.arch, where=where)["arch"]  # checks them all, too
+        other.settings = self.settings + [o for o in overrides if _is_pass_setting(o)]
         other.pass_options = dict(self.pass_options)
         other.states = []
         return other
 
+    def accuracy_settings(self) -> tuple:
+        """The ``accuracy`` settings it runs with (its hardware's, and its pass settings' over the
+        defaults): runs whose ones agree sample the same scene the same way."""
+        from pipeline_sim.config import pass_settings, settings_of
+        from pipeline_sim.settings import ACCURACY
+
+        s = pass_settings(self.settings, self.arch)
+        return tuple(sorted(settings_of(s["arch"], s["state"], s["simulation"], (ACCURACY,)).items()))
+
     def run_passes(self, passes: list[Any], progress: Progress = None) -> dict[str, Any]:
         """Run ``passes`` in order (a pass's ``textures`` may name earlier passes) with
-        :attr:`pass_options` set on each; record them for :meth:`pass_states`."""
+        :attr:`pass_options` and :attr:`settings` applied to each; record them for run.json."""
+        from pipeline_sim.config import pass_settings
         from pipeline_sim.render import run_passes
 
-        passes = [dataclasses.replace(p, **self.pass_options) for p in passes]
+        def prepared(p):
+            s = pass_settings(self.settings, p.arch, p.state, p.simulation) if self.settings else {}
+            return dataclasses.replace(p, **self.pass_options, **{k: s[k] for k in ("state", "simulation") if s})
+
+        passes = [prepared(p) for p in passes]
         self.states.extend(passes)
         return run_passes(passes, progress=progress)
+
+
+def _is_pass_setting(override: str) -> bool:
+    """Whether a ``--set`` text sets the pass state or the simulation options (not the hardware)."""
+    from pipeline_sim.config import PASS, SIMULATION, parse_override
+
+    return parse_override(override)[0] in (PASS, SIMULATION)
 
 
 def pass_state(p: Any) -> dict[str, Any]:
@@ -203,10 +230,27 @@ class SceneWorkload(Workload):
         """The workload of an already loaded scene."""
         return cls(scene.path or Path("<scene>"), arch, scene, None)
 
-    def check(self, archs: list[ArchConfig] | None = None, *, reference_spp: int | None = None) -> str:
+    def with_settings(self, overrides: list[str], where: str = "--set") -> "SceneWorkload":
+        from pipeline_sim.config import apply_settings
+
+        other = copy.copy(self)
+        other.scene, other.arch = apply_settings(self.scene, self.arch, overrides, where)
+        other.pass_options = dict(self.pass_options)
+        other.states = []
+        return other
+
+    def accuracy_settings(self) -> tuple:
+        from pipeline_sim.config import settings_of
+        from pipeline_sim.settings import ACCURACY
+
+        return tuple(sorted(settings_of(self.arch, self.scene.pass_state, self.scene.simulation,
+                                        (ACCURACY,)).items()))
+
+    def check(self, variants: list["Workload"] | None = None, *, reference_spp: int | None = None) -> str:
         from pipeline_sim.preflight import validate_run
 
-        self.draw = validate_run(self.scene, archs or [self.arch], str(self.path), reference_spp=reference_spp)
+        runs = [(v.scene, v.arch) for v in (variants or [self])]
+        self.draw = validate_run(runs, str(self.path), reference_spp=reference_spp)
         img = self.scene.image
         return (f"{len(self.scene.objects)} objects, {self.draw.n} triangles, {img.width}x{img.height} at "
                 f"{img.spp} spp, motion={self.draw.has_motion}, lens={self.draw.has_lens}")

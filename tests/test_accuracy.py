@@ -11,7 +11,10 @@ import pytest
 from pipeline_sim import UserError, load_arch, load_scene, render_scene
 from pipeline_sim.accuracy import (METRICS, ReferenceSpec, error_map, error_metrics, reference_image,
                                    to_display)
+from pipeline_sim.config import apply_settings
 from pipeline_sim.output import linear_to_srgb8
+from pipeline_sim.pass_state import PassState
+from pipeline_sim.simulation import SimOptions
 
 W, H = 32, 18
 
@@ -151,9 +154,9 @@ def test_reference_ignores_scene_spp_seed_and_timing(root, scene):
     spec = ReferenceSpec(spp=16)
     other = tiny(root, spp=64)
     other = other.replace(image=dataclasses.replace(other.image, seed=99))
-    arch = load_arch(overrides=["shading.mode='cache'", "zcull.time_slices=1",
-                                "pipeline.queue_depth=1", "tile_test.edge_test=false",
-                                "tile_test.algorithm='bbox'", "shading.shader_cycles=7"])
+    other, arch = apply_settings(other, load_arch(), [
+        "pass.shading_mode='cache'", "zcull.time_slices=1", "pipeline.queue_depth=1", "tile_test.edge_test=false",
+        "tile_test.algorithm='bbox'", "shading.shader_cycles=7", "simulation.region_samples=4096"])
     assert np.array_equal(reference_image(other, spec, arch=arch), reference_image(scene, spec))
 
 
@@ -199,7 +202,7 @@ def test_keys(root, scene):
         base.key(tiny(root, height=H + 1)),
         base.key(scene.replace(camera=dataclasses.replace(scene.camera, fov_y=30.0))),
         base.key(load_scene(root / "workloads/scenes/static.toml").replace(image=scene.image)),
-        base.key(scene, load_arch(overrides=["rop.depth_test='greater'"])),
+        base.key(scene.replace(pass_state=PassState(depth_test="greater"))),
     }
     assert k not in others and len(others) == 8
     # passes is irrelevant to a pipeline reference, spp to an accumulation one
@@ -209,6 +212,7 @@ def test_keys(root, scene):
     assert acc.key(scene) != dataclasses.replace(acc, passes=16).key(scene)
     # cost-model changes do not change the key
     assert k == base.key(scene, load_arch(overrides=["zcull.time_slices=8", "shading.cores=4"]))
+    assert k == base.key(scene.replace(simulation=SimOptions(tiles_per_batch=3)))
 
 
 def test_reference_keeps_the_image_settings_such_as_clip_planes(scene):
@@ -218,14 +222,16 @@ def test_reference_keeps_the_image_settings_such_as_clip_planes(scene):
     the reference's spp and seed; before the settings declared their effects,
     the reference reset the whole tile-test section and dropped the plane.
     """
-    clip = "tile_test.clip_t_hi=0.3"
+    clip = "pass.clip.t_hi=0.3"
     spec = ReferenceSpec(spp=16)
-    clipped_ref = reference_image(scene, spec, arch=load_arch(overrides=[clip, "tile_test.algorithm='bbox'"]))
-    direct = render_scene(scene.replace(image=dataclasses.replace(scene.image, spp=16, seed=spec.seed)),
-                          load_arch(overrides=[clip, "shading.mode='per_sample'"])).image
+    clipped, bbox = apply_settings(scene, load_arch(), [clip, "tile_test.algorithm='bbox'"])
+    assert clipped.pass_state.clip.t_hi == 0.3
+    clipped_ref = reference_image(clipped, spec, arch=bbox)
+    at_reference = scene.replace(image=dataclasses.replace(scene.image, spp=16, seed=spec.seed))
+    direct = render_scene(*apply_settings(at_reference, load_arch(), [clip, "pass.shading_mode='per_sample'"])).image
     assert np.array_equal(clipped_ref, direct)
     unclipped_ref = reference_image(scene, spec)
-    point = render_scene(scene.replace(image=dataclasses.replace(scene.image, spp=8)),
-                         load_arch(overrides=[clip])).image
+    point = render_scene(*apply_settings(scene.replace(image=dataclasses.replace(scene.image, spp=8)), load_arch(),
+                                         [clip])).image
     assert error_metrics(point, clipped_ref)["rmse"] < 0.5 * error_metrics(point, unclipped_ref)["rmse"]
-    assert spec.key(scene, load_arch(overrides=[clip])) != spec.key(scene)
+    assert spec.key(clipped) != spec.key(scene)

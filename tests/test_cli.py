@@ -124,7 +124,7 @@ def test_failed_run_keeps_previous_output(small_scene, tmp_path):
     out = tmp_path / "out"
     assert main(["run", str(small_scene), "--out", str(out), "--quiet"]) == 0
     before = (out / "run.json").read_text()
-    assert main(["run", str(small_scene), "--out", str(out), "--set", "rop.blend=mix"]) == 2
+    assert main(["run", str(small_scene), "--out", str(out), "--set", "pass.blend=mix"]) == 2
     assert (out / "run.json").read_text() == before
 
 

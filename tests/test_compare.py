@@ -83,7 +83,7 @@ def test_cli_writes_table_chart_images(small_motion, root, tmp_path, capsys):
 
 def test_cli_fails_when_images_differ(root, tmp_path, monkeypatch):
     # a setting that changes coverage is not a culling algorithm: the check must catch it
-    monkeypatch.setitem(cmp_mod.ALGORITHMS, "not-conservative", ["rop.depth_test='greater'"])
+    monkeypatch.setitem(cmp_mod.ALGORITHMS, "not-conservative", ["pass.depth_test='greater'"])
     rc = main(["compare", str(root / "workloads/scenes/compare/motion_1x.toml"), "--spp", "1",
                "--algorithms", "bbox", "not-conservative", "--quiet"])
     assert rc == 1

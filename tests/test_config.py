@@ -1,4 +1,5 @@
-"""Architecture configuration (pipeline_sim/config.py): defaults, --set, --arch, errors.
+"""Settings (pipeline_sim/config.py): the hardware's defaults, --set, --arch, the pass state and
+simulation options, the migration of moved keys, errors, and what each setting declares it can change.
 
 Expected values come from the shipped TOML read here with tomllib, from
 literal TOML/Python values, and from hand-written expectations of the error
@@ -14,9 +15,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pipeline_sim.config import (BLEND_MODES, DEFAULT_ARCH_PATH, DEPTH_FUNCS, SECTION_NAMES, ArchConfig,
-                                 apply_overrides, arch_from_dict, load_arch, parse_override)
+from pipeline_sim.config import (DEFAULT_ARCH_PATH, MOVED, SECTION_NAMES, ArchConfig, apply_overrides,
+                                 arch_from_dict, load_arch, parse_override, pass_settings)
+from pipeline_sim.definitions import BLEND_MODES, DEPTH_FUNCS
 from pipeline_sim.errors import UserError
+from pipeline_sim.pass_state import PassState
+from pipeline_sim.simulation import SimOptions
 
 
 def shipped():
@@ -56,13 +60,15 @@ def test_every_default_round_trips_through_dict():
 
 @pytest.mark.parametrize("text,expect", [
     ("tile_traverser.tile_size=16", ("tile_traverser", "tile_size", 16)),
-    ("shading.shading_rate=0.5", ("shading", "shading_rate", 0.5)),
-    ("shading.shading_rate=2", ("shading", "shading_rate", 2)),
+    ("pass.shading_rate=0.5", ("pass", "shading_rate", 0.5)),
+    ("pass.shading_rate=2", ("pass", "shading_rate", 2)),
+    ("pass.clip.t_hi=0.3", ("pass", "clip.t_hi", 0.3)),
+    ("simulation.region_samples=0", ("simulation", "region_samples", 0)),
     ("zcull.enabled=false", ("zcull", "enabled", False)),
     ("zcull.enabled=true", ("zcull", "enabled", True)),
-    ("rop.depth_test=lequal", ("rop", "depth_test", "lequal")),
-    ('rop.depth_test="gequal"', ("rop", "depth_test", "gequal")),
-    (" rop.blend = max ", ("rop", "blend", "max")),
+    ("pass.depth_test=lequal", ("pass", "depth_test", "lequal")),
+    ('pass.depth_test="gequal"', ("pass", "depth_test", "gequal")),
+    (" pass.blend = max ", ("pass", "blend", "max")),
     ("pipeline.clock_ghz=1e-1", ("pipeline", "clock_ghz", 0.1)),
     ("shading.cache_entries=-3", ("shading", "cache_entries", -3)),
 ])
@@ -73,35 +79,40 @@ def test_parse_override_values(text, expect):
 
 
 def test_overrides_apply_with_types():
-    arch = load_arch(overrides=["tile_traverser.tile_size=16", "shading.shading_rate=2",
-                                "zcull.enabled=false", "rop.depth_test=greater", "rop.blend=add",
-                                "shading.replacement=fifo", "pipeline.queue_depth=1",
-                                "tile_test.throughput=3"])
+    s = pass_settings(["tile_traverser.tile_size=16", "pass.shading_rate=2", "zcull.enabled=false",
+                       "pass.depth_test=greater", "pass.blend=add", "shading.replacement=fifo",
+                       "pipeline.queue_depth=1", "tile_test.throughput=3", "pass.clip.t_hi=0.5",
+                       "simulation.tiles_per_batch=7"])
+    arch, state, sim = s["arch"], s["state"], s["simulation"]
     assert arch.tile_traverser.tile_size == 16
-    assert arch.shading.shading_rate == 2.0 and isinstance(arch.shading.shading_rate, float)
+    assert state.shading_rate == 2.0 and isinstance(state.shading_rate, float)
     assert arch.tile_test.throughput == 3.0 and isinstance(arch.tile_test.throughput, float)
     assert arch.zcull.enabled is False
-    assert (arch.rop.depth_test, arch.rop.blend, arch.shading.replacement) == ("greater", "add", "fifo")
+    assert (state.depth_test, state.blend, arch.shading.replacement) == ("greater", "add", "fifo")
     assert arch.pipeline.queue_depth == 1
+    assert state.clip.t_hi == 0.5 and state.clip.t_lo == 0.0 and sim.tiles_per_batch == 7
+    assert state.replace(shading_rate=1.0, depth_test="less", blend="replace", clip=PassState().clip) == PassState()
     # untouched keys keep the shipped defaults
     data = shipped()
     assert arch.shading.cache_entries == data["shading"]["cache_entries"]
     assert arch.rop.latency == data["rop"]["latency"]
     # the last of two overrides of one key wins
-    assert load_arch(overrides=["rop.blend=add", "rop.blend=min"]).rop.blend == "min"
+    assert pass_settings(["pass.blend=add", "pass.blend=min"])["state"].blend == "min"
+    assert load_arch(overrides=["rop.latency=3", "rop.latency=4"]).rop.latency == 4
 
 
 def test_load_arch_does_not_mutate_base():
     base = load_arch()
     before = base.to_dict()
-    apply_overrides(base, ["rop.blend=add", "tile_traverser.tile_size=32"])
+    apply_overrides(base, ["rop.bandwidth=3", "tile_traverser.tile_size=32"])
+    pass_settings(["zcull.lens_boxes=1"], arch=base)
     arch_from_dict({"zcull": {"enabled": False}}, base=base)
     assert base.to_dict() == before
 
 
 def _expect_error(overrides, *fragments):
     with pytest.raises(UserError) as info:
-        load_arch(overrides=overrides)
+        pass_settings(overrides)
     msg = str(info.value)
     assert "\n" not in msg, msg
     for f in fragments:
@@ -122,7 +133,11 @@ def test_unknown_key_with_suggestion():
 def test_unknown_key_without_close_match_lists_known_keys():
     msg = _expect_error(["rop.qqqqq=1"], "rop", "qqqqq", "known keys")
     assert "did you mean" not in msg
-    assert "depth_test" in msg
+    assert "bandwidth" in msg
+    msg = _expect_error(["pass.qqqqq=1"], "pass", "qqqqq", "known keys")
+    assert "did you mean" not in msg and "depth_test" in msg
+    _expect_error(["pass.clip.t_high=0.5"], "[pass.clip]", "t_high", "did you mean 't_hi'")
+    _expect_error(["simulation.region_sample=0"], "[simulation]", "did you mean 'region_samples'")
 
 
 @pytest.mark.parametrize("text,section,key", [
@@ -130,10 +145,12 @@ def test_unknown_key_without_close_match_lists_known_keys():
     ("zcull.enabled=yes", "zcull", "enabled"),
     ("tile_traverser.tile_size=8.0", "tile_traverser", "tile_size"),
     ("tile_traverser.tile_size=true", "tile_traverser", "tile_size"),
-    ("shading.shading_rate=fast", "shading", "shading_rate"),
-    ("shading.shading_rate=true", "shading", "shading_rate"),
-    ("rop.depth_test=1", "rop", "depth_test"),
-    ("rop.depth_test=false", "rop", "depth_test"),
+    ("pass.shading_rate=fast", "pass", "shading_rate"),
+    ("pass.shading_rate=true", "pass", "shading_rate"),
+    ("pass.depth_test=1", "pass", "depth_test"),
+    ("pass.depth_test=false", "pass", "depth_test"),
+    ("pass.clip.t_hi=true", "pass", "clip.t_hi"),
+    ("simulation.region_samples=1.5", "simulation", "region_samples"),
     ("pipeline.queue_depth=[1, 2]", "pipeline", "queue_depth"),
 ])
 def test_wrong_type(text, section, key):
@@ -158,11 +175,12 @@ def test_cache_entries_multiple_of_ways():
 
 
 @pytest.mark.parametrize("text,section,key", [
-    ("rop.depth_test=lesser", "rop", "depth_test"),
-    ("rop.blend=multiply", "rop", "blend"),
-    ("shading.mode=cached", "shading", "mode"),
+    ("pass.depth_test=lesser", "pass", "depth_test"),
+    ("pass.blend=multiply", "pass", "blend"),
+    ("pass.shading_mode=cached", "pass", "shading_mode"),
     ("shading.replacement=random", "shading", "replacement"),
-    ("pipeline.mode=fast", "pipeline", "mode"),
+    ("pass.mode=fast", "pass", "mode"),
+    ("tile_test.algorithm=box", "tile_test", "algorithm"),
 ])
 def test_bad_enum(text, section, key):
     msg = _expect_error([text], f"{section}.{key}")
@@ -170,10 +188,10 @@ def test_bad_enum(text, section, key):
 
 
 def test_bad_enum_suggests_and_lists_choices():
-    msg = _expect_error(["rop.depth_test=lesser"], "did you mean 'less'")
+    msg = _expect_error(["pass.depth_test=lesser"], "did you mean 'less'")
     for f in DEPTH_FUNCS:
         assert f in msg
-    msg = _expect_error(["rop.blend=ad"], "rop.blend")
+    msg = _expect_error(["pass.blend=ad"], "pass.blend")
     for b in BLEND_MODES:
         assert b in msg
 
@@ -182,11 +200,16 @@ def test_bad_enum_suggests_and_lists_choices():
     ("rop.throughput=0", "rop", "throughput"),
     ("rop.throughput=-1.5", "rop", "throughput"),
     ("rop.bandwidth=nan", "rop", "bandwidth"),
-    ("shading.shading_rate=inf", "shading", "shading_rate"),
+    ("pass.shading_rate=inf", "pass", "shading_rate"),
+    ("pass.shading_rate=0.001", "pass", "shading_rate"),
+    ("pass.interleave_tuples=65", "pass", "interleave_tuples"),
+    ("pass.clip.t_hi=1.5", "pass", "clip.t_hi"),
+    ("pass.clip.u_lo=-2", "pass", "clip.u_lo"),
+    ("simulation.region_samples=-1", "simulation", "region_samples"),
     ("zcull.latency=-1", "zcull", "latency"),
     ("tile_test.instances=0", "tile_test", "instances"),
     ("pipeline.queue_depth=0", "pipeline", "queue_depth"),
-    ("pipeline.triangles_per_batch=0", "pipeline", "triangles_per_batch"),
+    ("simulation.triangles_per_batch=0", "simulation", "triangles_per_batch"),
     ("zcull.time_slices=0", "zcull", "time_slices"),
 ])
 def test_range_errors(text, section, key):
@@ -199,7 +222,13 @@ def test_zcull_box_budget():
     assert arch.zcull.time_slices * arch.zcull.lens_boxes ** 2 == 252
 
 
-@pytest.mark.parametrize("text", ["noequals", "a=1", "a.b.c=1", ".b=1", "a.=1"])
+def test_clip_planes_in_order():
+    _expect_error(["pass.clip.t_lo=0.6", "pass.clip.t_hi=0.4"], "pass.clip", "t_lo", "t_hi", "[0.6, 0.4]")
+    clip = pass_settings(["pass.clip.v_lo=0.2", "pass.clip.v_hi=0.2"])["state"].clip
+    assert (clip.v_lo, clip.v_hi) == (0.2, 0.2)
+
+
+@pytest.mark.parametrize("text", ["noequals", "a=1", "a.b.c=1", ".b=1", "a.=1", "pass.clip.t.hi=1", "rop.clip.t_hi=1"])
 def test_malformed_set(text):
     with pytest.raises(UserError) as info:
         parse_override(text)
@@ -208,30 +237,30 @@ def test_malformed_set(text):
 
 def test_arch_file_applied_over_defaults(tmp_path):
     f = tmp_path / "my_arch.toml"
-    f.write_text("[rop]\nblend = \"max\"\nthroughput = 4\n\n[shading]\ncache_entries = 64\n"
+    f.write_text("[rop]\nbandwidth = 8\nthroughput = 4\n\n[shading]\ncache_entries = 64\n"
                  "cache_ways = 4\n[zcull]\nenabled = false\n")
     arch = load_arch(f)
-    assert arch.rop.blend == "max" and arch.rop.throughput == 4.0
+    assert arch.rop.bandwidth == 8.0 and arch.rop.throughput == 4.0
     assert (arch.shading.cache_entries, arch.shading.cache_ways) == (64, 4)
     assert arch.zcull.enabled is False
     expect = shipped()
-    expect["rop"].update(blend="max", throughput=4.0)
+    expect["rop"].update(bandwidth=8.0, throughput=4.0)
     expect["shading"].update(cache_entries=64, cache_ways=4)
     expect["zcull"]["enabled"] = False
     assert arch.to_dict() == expect
     # --set applies on top of the file
-    arch2 = load_arch(f, overrides=["rop.blend=min", "shading.cache_entries=128"])
-    assert arch2.rop.blend == "min" and arch2.rop.throughput == 4.0
+    arch2 = load_arch(f, overrides=["rop.bandwidth=2", "shading.cache_entries=128"])
+    assert arch2.rop.bandwidth == 2.0 and arch2.rop.throughput == 4.0
     assert (arch2.shading.cache_entries, arch2.shading.cache_ways) == (128, 4)
 
 
 def test_arch_file_errors_name_the_file(tmp_path):
     bad = tmp_path / "bad_arch.toml"
-    bad.write_text("[rop]\ndepth_tst = \"less\"\n")
+    bad.write_text("[rop]\nbandwith = 1.0\n")
     with pytest.raises(UserError) as info:
         load_arch(bad)
     msg = str(info.value)
-    assert "bad_arch.toml" in msg and "rop" in msg and "depth_tst" in msg and "depth_test" in msg
+    assert "bad_arch.toml" in msg and "rop" in msg and "bandwith" in msg and "did you mean 'bandwidth'" in msg
     assert "\n" not in msg
     notable = tmp_path / "nt.toml"
     notable.write_text("rop = 3\n")
@@ -253,30 +282,93 @@ def test_arch_file_errors_name_the_file(tmp_path):
 
 def test_replace_keeps_sections():
     arch = load_arch()
-    new = arch.replace(rop=dataclasses.replace(arch.rop, blend="add"))
-    assert new.rop.blend == "add" and arch.rop.blend == "replace"
+    new = arch.replace(rop=dataclasses.replace(arch.rop, bandwidth=2.0))
+    assert new.rop.bandwidth == 2.0 and arch.rop.bandwidth == 64.0
     assert new.shading == arch.shading
 
 
-def test_leaving_conservative_mode_restores_tile_size(tmp_path):
-    f = tmp_path / "cons.toml"
-    f.write_text('[pipeline]\nmode = "conservative"\n')
-    arch = load_arch(f, overrides=["pipeline.mode=standard"])
-    assert arch.pipeline.mode == "standard"
-    assert arch.tile_traverser.tile_size == shipped()["tile_traverser"]["tile_size"]
+# --- the settings that moved out of the architecture file -----------------------
+
+# hand-written: where each old key goes now (the scene's table, its key there, the --set path)
+WHERE_NOW = {
+    "pipeline.mode": ("[pass]", "mode", "pass.mode"),
+    "pipeline.sample_pattern": ("[pass]", "sample_pattern", "pass.sample_pattern"),
+    "pipeline.interleave_tuples": ("[pass]", "interleave_tuples", "pass.interleave_tuples"),
+    "triangle_setup.backface_culling": ("[pass]", "backface_culling", "pass.backface_culling"),
+    "rop.depth_test": ("[pass]", "depth_test", "pass.depth_test"),
+    "rop.depth_write": ("[pass]", "depth_write", "pass.depth_write"),
+    "rop.blend": ("[pass]", "blend", "pass.blend"),
+    "shading.mode": ("[pass]", "shading_mode", "pass.shading_mode"),
+    "shading.shading_rate": ("[pass]", "shading_rate", "pass.shading_rate"),
+    **{f"tile_test.clip_{a}_{e}": ("[pass.clip]", f"{a}_{e}", f"pass.clip.{a}_{e}")
+       for a in "tuv" for e in ("lo", "hi")},
+    **{f"pipeline.{k}": ("[simulation]", k, f"simulation.{k}")
+       for k in ("triangles_per_batch", "tiles_per_batch", "samples_per_batch", "region_samples")},
+}
+OLD_VALUES = {"pipeline.mode": "conservative", "pipeline.sample_pattern": "sobol", "rop.depth_test": "always",
+              "rop.blend": "add", "shading.mode": "per_sample", "rop.depth_write": False,
+              "triangle_setup.backface_culling": True}
+
+
+@pytest.mark.parametrize("old", sorted(WHERE_NOW))
+def test_a_moved_key_in_an_architecture_file_says_where_it_goes_now(tmp_path, old):
+    assert set(MOVED) == set(WHERE_NOW)
+    section, key = old.split(".")
+    value = OLD_VALUES.get(old, 0.5 if "clip" in old else 32)
+    f = tmp_path / "arch.toml"
+    literal = '"' + value + '"' if isinstance(value, str) else str(value).lower()
+    f.write_text(f"[{section}]\n{key} = {literal}\n")
+    table, name, path = WHERE_NOW[old]
+    kind = "a simulation option" if table == "[simulation]" else "pass state"
+    expect = (f"arch.toml: [{section}] {key} is {kind} now: set it in the scene's {table} table "
+              f"({name} = {literal}) or with --set {path}={literal}")
+    with pytest.raises(UserError) as info:
+        load_arch(f)
+    assert str(info.value) == expect
+    with pytest.raises(UserError) as info:
+        pass_settings([f"{old}={literal}"])
+    assert str(info.value) == expect.replace("arch.toml:", "--set:", 1)
+    # and where it says, it is taken
+    s = pass_settings([f"{path}={literal}"])
+    owner = s["simulation"] if table == "[simulation]" else s["state"]
+    got = getattr(owner.clip, name) if table == "[pass.clip]" else getattr(owner, name)
+    assert got == value
+
+
+def test_scene_pass_and_simulation_tables(tmp_path, root):
+    from pipeline_sim.scene import load_scene
+
+    text = (root / "workloads/scenes/static.toml").read_text()
+    f = tmp_path / "s.toml"
+    f.write_text(text + '\n[pass]\ndepth_test = "always"\nshading_mode = "per_sample"\n[pass.clip]\nt_hi = 0.3\n'
+                 "\n[simulation]\nregion_samples = 0\n")
+    scene = load_scene(f)
+    assert scene.pass_state == PassState(depth_test="always", shading_mode="per_sample",
+                                         clip=dataclasses.replace(PassState().clip, t_hi=0.3))
+    assert scene.simulation == SimOptions(region_samples=0)
+    assert load_scene(root / "workloads/scenes/static.toml").pass_state == PassState()
+    f.write_text(text + '\n[pass]\ndepth_tst = "always"\n')
+    with pytest.raises(UserError, match=r"s.toml: \[pass\]: unknown key 'depth_tst' \(did you mean 'depth_test'\?\)"):
+        load_scene(f)
+    f.write_text(text + '\n[pass.clip]\nt_hi = 2.0\n')
+    with pytest.raises(UserError, match=r"s.toml: pass.clip.t_hi: must be from 0 to 1, got 2.0"):
+        load_scene(f)
+    f.write_text('pass = 3\n' + text)
+    with pytest.raises(UserError, match=r"s.toml: \[pass\] must be a table, got 3"):
+        load_scene(f)
 
 
 # --- what each setting declares it can change -----------------------------------
 
 def _alternative(path: str, value):
     """A valid value other than the default, for every setting."""
-    special = {"pipeline.mode": "conservative", "pipeline.sample_pattern": "sobol", "pipeline.interleave_tuples": 32,
-               "pipeline.region_samples": 4096, "tile_test.algorithm": "bbox", "tile_test.edge_solver": "quadratic",
-               "tile_test.gamma": "tile", "tile_test.clip_t_hi": 0.5, "tile_test.clip_t_lo": 0.5,
-               "tile_test.clip_u_lo": 0.0, "tile_test.clip_u_hi": 0.0, "tile_test.clip_v_lo": 0.0,
-               "tile_test.clip_v_hi": 0.0, "tile_traverser.tile_size": 16, "tile_traverser.coarse_factor": 2,
-               "zcull.lens_boxes": 3, "shading.mode": "per_sample", "shading.replacement": "fifo",
-               "rop.depth_test": "greater", "rop.blend": "add", "shading.cache_ways": 4}
+    special = {"pass.mode": "conservative", "pass.sample_pattern": "sobol", "pass.interleave_tuples": 32,
+               "simulation.region_samples": 4096, "tile_test.algorithm": "bbox", "tile_test.edge_solver": "quadratic",
+               "tile_test.gamma": "tile", "pass.clip.t_hi": 0.5, "pass.clip.t_lo": 0.5,
+               "pass.clip.u_lo": 0.0, "pass.clip.u_hi": 0.0, "pass.clip.v_lo": 0.0,
+               "pass.clip.v_hi": 0.0, "tile_traverser.tile_size": 16, "tile_traverser.coarse_factor": 2,
+               "zcull.lens_boxes": 3, "pass.shading_mode": "per_sample", "shading.replacement": "fifo",
+               "pass.depth_test": "greater", "pass.blend": "add", "shading.cache_ways": 4}
     if path in special:
         return special[path]
     if isinstance(value, bool):
@@ -288,18 +380,29 @@ def _alternative(path: str, value):
     raise AssertionError(f"no alternative for {path} = {value!r}")
 
 
+def _paths(obj, prefix=""):
+    """Every setting of a settings dataclass by dotted path, with its value (walked here, not by config)."""
+    out = {}
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        out.update(_paths(v, f"{prefix}{f.name}.") if dataclasses.is_dataclass(v) else {f"{prefix}{f.name}": v})
+    return out
+
+
+def _all_paths():
+    return {**_paths(load_arch()), **_paths(PassState(), "pass."), **_paths(SimOptions(), "simulation.")}
+
+
 def test_every_setting_declares_what_it_can_change():
     from pipeline_sim.config import EFFECTS, setting_effects
 
     effects = setting_effects()
-    arch = load_arch()
-    listed = {f"{s}.{f.name}" for s in SECTION_NAMES for f in dataclasses.fields(getattr(arch, s))}
-    assert set(effects) == listed and set(effects.values()) <= set(EFFECTS)
+    listed = _all_paths()
+    assert set(effects) == set(listed) and set(effects.values()) <= set(EFFECTS)
+    assert len([p for p in listed if p.startswith("pass.")]) == 15 and "simulation.region_samples" in listed
     # every setting's alternative value is valid on its own
-    for path in effects:
-        section, key = path.split(".")
-        value = _alternative(path, getattr(getattr(arch, section), key))
-        apply_overrides(arch, [_override(path, value)])
+    for path, value in listed.items():
+        pass_settings([_override(path, _alternative(path, value))])
 
 
 @pytest.fixture(scope="module")
@@ -311,86 +414,69 @@ def blurred_scene(root):
 
 
 def _override(path, value):
-    from pipeline_sim.sweep import toml_literal
+    from pipeline_sim.config import literal
 
-    return f"{path}={toml_literal(value)}"
+    return f"{path}={literal(value)}"
 
 
 def test_settings_declared_not_to_change_the_image_do_not(blurred_scene):
-    """Measured, not assumed: every `counters` and `cycles` setting, moved off its default, leaves the image
-    bit-identical; with z-cull (the one path from timing back to the work) off, every `cycles` setting leaves
-    every counter identical too."""
+    """Measured, not assumed: every `counters` and `cycles` setting (hardware or simulation option), moved
+    off its default, leaves the image bit-identical; with z-cull (the one path from timing back to the work)
+    off, every `cycles` setting leaves every counter identical too."""
     from pipeline_sim.config import COUNTERS, CYCLES, setting_effects
     from pipeline_sim.render import render_scene
 
-    base = load_arch()
-    reference = render_scene(blurred_scene, base)
-    no_zcull = load_arch(overrides=["zcull.enabled=false"])
-    reference_counters = render_scene(blurred_scene, no_zcull).counters
+    reference = render_scene(blurred_scene, **pass_settings([]))
+    reference_counters = render_scene(blurred_scene, **pass_settings(["zcull.enabled=false"])).counters
+    values = _all_paths()
     checked = 0
     for path, effect in setting_effects().items():
         if effect not in (COUNTERS, CYCLES):
             continue
-        section, key = path.split(".")
-        change = _override(path, _alternative(path, getattr(getattr(base, section), key)))
-        image = render_scene(blurred_scene, apply_overrides(base, [change])).image
+        change = _override(path, _alternative(path, values[path]))
+        image = render_scene(blurred_scene, **pass_settings([change])).image
         assert np.array_equal(image, reference.image), path
         if effect == CYCLES:
-            counters = render_scene(blurred_scene, apply_overrides(no_zcull, [change])).counters
+            counters = render_scene(blurred_scene, **pass_settings(["zcull.enabled=false", change])).counters
             pd.testing.assert_frame_equal(counters, reference_counters, obj=path)
         checked += 1
     assert checked >= 35
 
 
-def test_reference_arch_follows_the_declarations():
-    from pipeline_sim.config import IMAGE, reference_arch, settings_of, setting_effects
+def test_reference_setup_follows_the_declarations():
+    from pipeline_sim.config import IMAGE, reference_setup, setting_effects, settings_of
 
-    user = load_arch(overrides=["tile_test.clip_t_hi=0.3", "rop.depth_test='lequal'", "shading.mode='cache'",
-                                "pipeline.sample_pattern='interleave'", "tile_test.algorithm='interleave_uvt'",
-                                "zcull.time_slices=8", "rop.throughput=3.0"])
-    ref = reference_arch(user)
-    assert settings_of(ref, (IMAGE,)) == settings_of(user, (IMAGE,))
-    assert (ref.shading.mode, ref.pipeline.sample_pattern, ref.pipeline.mode) == ("per_sample", "net", "standard")
-    shipped = load_arch()
+    s = pass_settings(["pass.clip.t_hi=0.3", "pass.depth_test='lequal'", "pass.shading_mode='cache'",
+                       "pass.sample_pattern='interleave'", "tile_test.algorithm='interleave_uvt'",
+                       "zcull.time_slices=8", "rop.throughput=3.0", "simulation.region_samples=0",
+                       "shading.cache_entries=64"])
+    ref = reference_setup(s["arch"], s["state"])
+    user_values = settings_of(s["arch"], s["state"], s["simulation"], ("image",))
+    assert settings_of(*ref, (IMAGE,)) == user_values
+    assert ref[1].clip.t_hi == 0.3 and ref[1].depth_test == "lequal"
+    assert (ref[1].shading_mode, ref[1].sample_pattern, ref[1].mode) == ("per_sample", "net", "standard")
+    shipped = _all_paths()
+    got = {**_paths(ref[0]), **_paths(ref[1], "pass."), **_paths(ref[2], "simulation.")}
     for path, effect in setting_effects().items():
-        if effect in ("counters", "cycles"):
-            section, key = path.split(".")
-            assert getattr(getattr(ref, section), key) == getattr(getattr(shipped, section), key), path
-
-
-def test_the_docs_table_of_effects_matches_the_declarations(root):
-    from pipeline_sim.config import setting_effects
-
-    text = (root / "docs/architecture-format.md").read_text()
-    rows = {line.split("|")[1].strip(" `"): line.split("|")[3] for line in text.splitlines()
-            if line.startswith("| `") and line.split("|")[1].strip(" `") in ("image", "accuracy", "counters", "cycles")}
-    assert len(rows) == 4
-    for path, effect in setting_effects().items():
-        if path.split(".")[1] in ("throughput", "latency", "instances"):
-            assert "every unit's `throughput`, `latency` and `instances`" in rows["cycles"]
-            continue
-        listed_in = [e for e, cell in rows.items() if f"`{path}`" in cell]
-        assert listed_in == [effect], (path, listed_in)
+        if effect in ("counters", "cycles") or path == "shading.cache_entries":
+            assert got[path] == shipped[path], path
 
 
 @pytest.mark.parametrize("value", ["1e-308", "1e308", "1" + "0" * 400, "-1", "nan"])
 def test_every_numeric_setting_is_bounded_so_the_cost_model_stays_finite(value):
-    """Each number an architecture takes is refused in one line outside its range (a throughput of 1e-308
+    """Each number a setting takes is refused in one line outside its range (a throughput of 1e-308
     made the frame's cycles infinite, and the run died writing run.json after the whole simulation)."""
-    arch = load_arch()
-    for section in SECTION_NAMES:
-        for f in dataclasses.fields(getattr(arch, section)):
-            default = getattr(getattr(arch, section), f.name)
-            if isinstance(default, bool) or not isinstance(default, (int, float)):
-                continue
-            if isinstance(default, int) and value in ("1e-308", "1e308", "nan"):
-                continue   # not an integer: refused for its type already
-            if f.name.startswith("clip_") and value in ("1e-308", "-1"):
-                continue   # a clip plane may sit anywhere in [0, 1] or [-1, 1]
-            with pytest.raises(UserError) as info:
-                apply_overrides(arch, [f"{section}.{f.name}={value}"])
-            assert "\n" not in str(info.value) and f.name in str(info.value)
-            assert len(str(info.value)) < 300
+    for path, default in _all_paths().items():
+        if isinstance(default, bool) or not isinstance(default, (int, float)):
+            continue
+        if isinstance(default, int) and value in ("1e-308", "1e308", "nan"):
+            continue   # not an integer: refused for its type already
+        if ".clip." in path and value in ("1e-308", "-1"):
+            continue   # a clip plane may sit anywhere in [0, 1] or [-1, 1]
+        with pytest.raises(UserError) as info:
+            pass_settings([f"{path}={value}"])
+        assert "\n" not in str(info.value) and path.rsplit(".", 1)[1] in str(info.value)
+        assert len(str(info.value)) < 300
 
 
 def test_the_cost_model_range_keeps_frame_cycles_finite(root):

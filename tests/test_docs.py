@@ -8,6 +8,7 @@ relative link of the Markdown documentation resolves to a file of the
 repository, and every anchor to a heading or an ``id`` of its target.
 """
 
+import dataclasses
 import re
 import subprocess
 from pathlib import Path
@@ -120,3 +121,38 @@ def test_readme_links_the_documentation(root):
     targets = [t.partition("#")[0] for t in links(root / "README.md")]
     assert "docs/README.md" in targets
     assert all((root / "docs" / name).exists() for name in ("README.md", "bibliography.md", "pipeline.md"))
+
+
+def test_generated_docs_are_current(root):
+    """The settings tables and the counter glossary are what the declarations give now (`make docs`)."""
+    from pipeline_sim import docgen
+
+    assert docgen.stale(root) == [], "run `make docs`"
+
+
+def test_a_stale_generated_block_is_caught(root, tmp_path):
+    """Drop one row of a generated table in a copy of the docs: the check names that file."""
+    from pipeline_sim import docgen
+
+    for f in docgen.BLOCKS:
+        (tmp_path / f).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / f).write_text((root / f).read_text())
+    page = tmp_path / "docs/scene-format.md"
+    page.write_text("\n".join(line for line in page.read_text().splitlines() if not line.startswith("| `pass.blend`"))
+                    + "\n")
+    assert docgen.stale(tmp_path) == ["docs/scene-format.md"]
+
+
+def test_the_counter_glossary_lists_what_a_run_counts(root):
+    """Every (unit, counter) row of a real run's counters table, with its timing_dependent flag, is a row of
+    docs/counters.md, and nothing else is."""
+    from pipeline_sim import load_arch, load_scene, render_scene
+
+    scene = load_scene(root / "workloads/scenes/default.toml")
+    scene = scene.replace(image=dataclasses.replace(scene.image, width=32, height=18, spp=1))
+    counters = render_scene(scene, load_arch()).counters
+    ran = {(r.unit, r.counter, "yes" if r.timing_dependent else "no") for r in counters.itertuples()}
+    text = (root / "docs/counters.md").read_text()
+    rows = {tuple(c.strip(" `") for c in (line.split("|")[1], line.split("|")[2], line.split("|")[4]))
+            for line in text.splitlines() if line.startswith("| `")}
+    assert rows == ran

@@ -18,7 +18,7 @@ import pytest
 
 import units.rop
 
-from pipeline_sim.config import apply_overrides, load_arch
+from pipeline_sim.config import pass_settings
 from pipeline_sim.draw import build_draw
 from pipeline_sim.errors import UserError
 from pipeline_sim.render import render_scene
@@ -109,10 +109,10 @@ SHOWN = ("radiance", "light_on_face", "huge_world", "tiny_world")
 
 ARCHS = {
     "default": [],
-    "per_sample": ["shading.mode='per_sample'"],
+    "per_sample": ["pass.shading_mode='per_sample'"],
     # every layer adds up: the blend must saturate, not overflow
-    "add_always": ["rop.blend='add'", "rop.depth_test='always'", "shading.mode='per_sample'"],
-    "conservative": ["pipeline.mode='conservative'"],
+    "add_always": ["pass.blend='add'", "pass.depth_test='always'", "pass.shading_mode='per_sample'"],
+    "conservative": ["pass.mode='conservative'"],
 }
 
 
@@ -143,11 +143,11 @@ def rop_batches(monkeypatch):
 def test_extreme_accepted_scenes_leave_every_buffer_finite(scene_name, arch_name, rop_batches):
     data = SCENES[scene_name]
     scene = parse_scene(copy.deepcopy(data))  # accepted: every value is within its bound
-    arch = apply_overrides(load_arch(), ARCHS[arch_name]) if ARCHS[arch_name] else load_arch()
+    settings = pass_settings(ARCHS[arch_name])
     draw = build_draw(scene)
     for field in ("q", "r", "lens_x", "lens_y", "pos", "nrm", "color"):
         assert_finite(f"draw.{field} as float32", getattr(draw, field).astype(np.float32))
-    res = render_scene(scene, arch, keep_depth=True)
+    res = render_scene(scene, **settings, keep_depth=True)
     assert rop_batches == {"color": 0, "z": 0}, f"non-finite values entering the ROP: {rop_batches}"
     assert_finite("image", res.image)
     if res.depth is not None:
@@ -170,8 +170,7 @@ def test_accumulated_layers_saturate_at_the_largest_float32():
                       "near": 1e-7, "far": 1.0}
     data["light"]["position"] = [0.0, 1.2 - 1e-8, 1e-7]
     data["objects"] = layers
-    arch = apply_overrides(load_arch(), ARCHS["add_always"])
-    res = render_scene(parse_scene(data), arch)
+    res = render_scene(parse_scene(data), **pass_settings(ARCHS["add_always"]))
     assert_finite("image", res.image)
     assert res.image[..., 0].max() == np.finfo(np.float32).max  # the sum did exceed the range
 

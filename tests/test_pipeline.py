@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline_sim.config import load_arch
+from pipeline_sim.config import load_arch, pass_settings
 from pipeline_sim.draw import draw_from_clip
 from pipeline_sim.pipeline import Stage, chunks, cycles_for, simulate
 from pipeline_sim.render import UNIT_ORDER, RenderPass, run_pass
@@ -368,18 +368,18 @@ def baseline(draw):
 TIMING_VARIANTS = [
     ["pipeline.queue_depth=1"],
     ["pipeline.queue_depth=7"],
-    ["pipeline.triangles_per_batch=1"],
-    ["pipeline.triangles_per_batch=17", "pipeline.tiles_per_batch=3"],
-    ["pipeline.tiles_per_batch=1", "pipeline.queue_depth=2"],
-    ["pipeline.samples_per_batch=2"],
-    ["pipeline.samples_per_batch=97", "pipeline.tiles_per_batch=13"],
+    ["simulation.triangles_per_batch=1"],
+    ["simulation.triangles_per_batch=17", "simulation.tiles_per_batch=3"],
+    ["simulation.tiles_per_batch=1", "pipeline.queue_depth=2"],
+    ["simulation.samples_per_batch=2"],
+    ["simulation.samples_per_batch=97", "simulation.tiles_per_batch=13"],
     ["triangle_setup.throughput=0.01", "rop.throughput=0.25", "rop.bandwidth=1.0"],
     ["tile_test.throughput=100", "sample_tester.throughput=0.5", "shading.throughput=0.1", "shading.cores=1"],
     ["triangle_setup.latency=0", "tile_traverser.latency=0", "tile_test.latency=0", "zcull.latency=0",
      "sample_tester.latency=0", "shading.latency=0", "rop.latency=0"],
     ["triangle_setup.latency=500", "zcull.latency=1000", "rop.latency=3", "shading.shader_cycles=1000"],
     ["tile_test.instances=7", "sample_tester.instances=1", "rop.instances=4", "zcull.instances=3",
-     "pipeline.queue_depth=1", "pipeline.triangles_per_batch=3"],
+     "pipeline.queue_depth=1", "simulation.triangles_per_batch=3"],
 ]
 
 
@@ -390,7 +390,7 @@ def ordered_baseline(draw):
 
 @pytest.mark.parametrize("overrides", TIMING_VARIANTS, ids=lambda o: ",".join(o)[:60])
 def test_image_independent_of_timing(draw, baseline, overrides):
-    res = run_pass(RenderPass(draw=draw, arch=load_arch(overrides=overrides), spp=SPP))
+    res = run_pass(RenderPass(draw=draw, **pass_settings(overrides), spp=SPP))
     np.testing.assert_array_equal(res.image, baseline.image)
     np.testing.assert_array_equal(res.depth, baseline.depth)
     # nor does any counter declared timing-independent (docs/pipeline.md §4)
@@ -404,11 +404,11 @@ def test_ordered_refresh_makes_every_counter_independent_of_timing(draw, ordered
     """With z-cull refreshed in submission order no counter depends on queue
     depths, throughputs, latencies, instances or tile and sample batch sizes;
     the triangle batch is the refresh's step, so it may move z-cull's."""
-    res = run_pass(RenderPass(draw=draw, arch=load_arch(overrides=overrides), spp=SPP, zcull_refresh="ordered"))
+    res = run_pass(RenderPass(draw=draw, **pass_settings(overrides), spp=SPP, zcull_refresh="ordered"))
     np.testing.assert_array_equal(res.image, baseline.image)
     np.testing.assert_array_equal(res.depth, baseline.depth)
     assert not res.counters.timing_dependent.any()
-    if not any(o.startswith("pipeline.triangles_per_batch") for o in overrides):
+    if not any(o.startswith("simulation.triangles_per_batch") for o in overrides):
         assert res.counters.equals(ordered_baseline.counters)
 
 
@@ -438,23 +438,23 @@ def test_records_chain_between_used_units(draw, baseline):
 
 
 def test_records_chain_conservative_mode(draw):
-    res = run_pass(RenderPass(draw=draw, arch=load_arch(overrides=["pipeline.mode=conservative"]), spp=SPP))
+    res = run_pass(RenderPass(draw=draw, **pass_settings(["pass.mode=conservative"]), spp=SPP))
     assert "sample_tester" not in res.units_used
     _check_records_chain(res)
 
 
 def test_records_chain_with_zcull_bypassed(draw):
-    res = run_pass(RenderPass(draw=draw, arch=load_arch(overrides=["zcull.enabled=false"]), spp=SPP))
+    res = run_pass(RenderPass(draw=draw, **pass_settings(["zcull.enabled=false"]), spp=SPP))
     assert "zcull" not in res.units_used
     _check_records_chain(res)
 
 
 def test_busy_cycles_closed_forms(draw):
     """With one item per cycle per unit the busy cycles are the work counters."""
-    arch = load_arch(overrides=["triangle_setup.throughput=0.5", "pipeline.triangles_per_batch=10",
+    settings = pass_settings(["triangle_setup.throughput=0.5", "simulation.triangles_per_batch=10",
                                 "sample_tester.throughput=1", "sample_tester.instances=1",
                                 "tile_test.throughput=1", "tile_test.instances=1"])
-    res = run_pass(RenderPass(draw=draw, arch=arch, spp=SPP))
+    res = run_pass(RenderPass(draw=draw, **settings, spp=SPP))
     rows = res.timing.units.set_index("unit")
     assert rows.loc["triangle_setup"].busy == draw.n / 0.5  # batches of 10: 20 cycles each
     assert rows.loc["tile_test"].busy == res.counter("tile_test", "records_in")
@@ -465,8 +465,8 @@ def test_busy_cycles_closed_forms(draw):
 
 
 def test_frame_cycles_change_with_throughput(draw, baseline):
-    slow = run_pass(RenderPass(draw=draw, arch=load_arch(overrides=["sample_tester.throughput=0.25"]), spp=SPP))
-    fast = run_pass(RenderPass(draw=draw, arch=load_arch(overrides=["sample_tester.throughput=1000"]), spp=SPP))
+    slow = run_pass(RenderPass(draw=draw, **pass_settings(["sample_tester.throughput=0.25"]), spp=SPP))
+    fast = run_pass(RenderPass(draw=draw, **pass_settings(["sample_tester.throughput=1000"]), spp=SPP))
     assert slow.timing.frame_cycles > baseline.timing.frame_cycles >= fast.timing.frame_cycles
     # the slow tester alone needs (tested + pixels) * 4 cycles
     work = slow.counter("sample_tester", "samples_tested") + slow.counter("sample_tester", "pixels_visited")
@@ -492,9 +492,9 @@ def test_frame_cycles_converge_as_batches_shrink(draw):
     also refreshes z-cull more often."""
     results = {}
     for tiles in (256, 64, 16, 4):
-        arch = load_arch(overrides=[f"pipeline.tiles_per_batch={tiles}", "pipeline.triangles_per_batch=8",
-                                    f"pipeline.samples_per_batch={64 * tiles}"])
-        results[tiles] = run_pass(RenderPass(draw=draw, arch=arch, spp=SPP, zcull_refresh="ordered"))
+        settings = pass_settings([f"simulation.tiles_per_batch={tiles}", "simulation.triangles_per_batch=8",
+                                    f"simulation.samples_per_batch={64 * tiles}"])
+        results[tiles] = run_pass(RenderPass(draw=draw, **settings, spp=SPP, zcull_refresh="ordered"))
     cycles = [results[t].timing.frame_cycles for t in (256, 64, 16, 4)]
     steps = np.abs(np.diff(cycles))
     assert np.all(np.diff(steps) < 0) and steps[-1] <= 0.02 * cycles[-1], cycles

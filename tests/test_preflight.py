@@ -22,6 +22,7 @@ from pipeline_sim.cli import main
 from pipeline_sim.config import load_arch
 from pipeline_sim.output import linear_to_srgb8
 from pipeline_sim.preflight import FIXED_BYTES, estimate_memory
+from pipeline_sim.simulation import SimOptions
 from scenes import moving_sphere, scene_toml
 
 SCENE = scene_toml(moving_sphere(), seed=2)
@@ -34,8 +35,8 @@ REFUSED = [
     # the reported case: `check` said ok, `run` refused after loading the kernels
     ("spp beyond the limit", ["--spp", "1048576"], "--spp: must be <= 16384, got 1048576"),
     ("spp not a power of two for the net pattern", ["--spp", "12"], "spp = 12 must be a power of two"),
-    ("spp and the interleave pattern", ["--spp", "128", "--set", "pipeline.sample_pattern='interleave'"],
-     "must divide pipeline.interleave_tuples = 64"),
+    ("spp and the interleave pattern", ["--spp", "128", "--set", "pass.sample_pattern='interleave'"],
+     "must divide pass.interleave_tuples = 64"),
     ("negative seed", ["--seed", "-1"], "--seed: must be in [0, 2^64)"),
     ("z-cull boxes of a 16384-pixel frame of 1-pixel tiles", ["--tile", "1", "--set", "zcull.time_slices=63",
      "--set", "zcull.lens_boxes=2"], None),
@@ -100,10 +101,10 @@ def test_sweep_points_pass_the_same_checks(scene, tmp_path):
     sweep.write_text('[sweep]\nscene = "scene.toml"\n[grid]\n"image.spp" = [4, 12]\n')
     with pytest.raises(UserError, match=r"point image.spp=12: spp = 12 must be a power of two"):
         load_sweep(sweep)
-    sweep.write_text('[sweep]\nscene = "scene.toml"\nset = ["pipeline.sample_pattern=\'random\'"]\n'
+    sweep.write_text('[sweep]\nscene = "scene.toml"\nset = ["pass.sample_pattern=\'random\'"]\n'
                      '[grid]\n"image.spp" = [4, 12]\n')
     assert len(load_sweep(sweep).points) == 2
-    assert main(["check", str(scene), "--spp", "12", "--set", "pipeline.sample_pattern='random'"]) == 0
+    assert main(["check", str(scene), "--spp", "12", "--set", "pass.sample_pattern='random'"]) == 0
 
 
 def test_a_run_that_does_not_fit_is_refused_in_one_line(scene, tmp_path, monkeypatch, capsys):
@@ -125,7 +126,8 @@ argv = {argv!r}
 args = build_parser().parse_args(argv)
 scene, arch = _load_inputs(args)
 img = scene.image
-estimate = estimate_memory(img.width, img.height, img.spp, scene.triangle_count, arch).total
+estimate = estimate_memory(img.width, img.height, img.spp, scene.triangle_count, arch, scene.pass_state,
+                           scene.simulation).total
 before = psutil.Process().memory_info().rss
 assert main(argv) == 0
 # VmHWM, this process's own high-water mark: ru_maxrss would keep the forking parent's (pytest's, gigabytes
@@ -137,8 +139,8 @@ print(json.dumps({{"estimate": estimate, "added": peak - before}}))
 RUNS = {
     "one region": ["--spp", "16"],
     # 16 regions of 2 coarse-tile rows: the region terms are held and replaced many times
-    "many regions": ["--spp", "64", "--set", "pipeline.region_samples=100000"],
-    "large tiles, conservative": ["--tile", "32", "--set", "pipeline.mode='conservative'"],
+    "many regions": ["--spp", "64", "--set", "simulation.region_samples=100000"],
+    "large tiles, conservative": ["--tile", "32", "--set", "pass.mode='conservative'"],
 }
 
 
@@ -160,9 +162,9 @@ def test_estimate_terms_follow_the_settings():
     small = estimate_memory(320, 180, 16, 1000, arch)
     assert estimate_memory(320, 180, 16, 2000, arch).parts["triangles"] == 2 * small.parts["triangles"]
     assert estimate_memory(640, 360, 16, 1000, arch).parts["image"] == 4 * small.parts["image"]
-    # a frame of more than pipeline.region_samples samples holds one region's samples, not the frame's
+    # a frame of more than simulation.region_samples samples holds one region's samples, not the frame's
     big = estimate_memory(8192, 8192, 16, 1000, arch)
-    assert big.parts["region samples"] <= arch.pipeline.region_samples * preflight.BYTES["region_sample"]
+    assert big.parts["region samples"] <= SimOptions().region_samples * preflight.BYTES["region_sample"]
     assert estimate_memory(320, 180, 16, 1000, arch, images=3).parts["image"] == 3 * small.parts["image"]
 
 

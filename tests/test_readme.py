@@ -58,6 +58,12 @@ def test_scene_example_loads_and_renders(root, tmp_path, block):
     assert (scene.camera.lens is not None) == ("lens" in camera)
     moves = any(k in camera and camera[k] != camera[k.removesuffix("_close")] for k in ("eye_close", "look_at_close"))
     assert scene.camera.moving == moves
+    for table, got in (("pass", scene.pass_state), ("simulation", scene.simulation)):
+        for key, value in data.get(table, {}).items():
+            if isinstance(value, dict):
+                assert all(getattr(getattr(got, key), k) == v for k, v in value.items()), f"[{table}.{key}]"
+            else:
+                assert getattr(got, key) == value, f"[{table}] {key}"
 
 
 @pytest.mark.parametrize("block", examples("arch"))

@@ -9,7 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pipeline_sim import render
-from pipeline_sim.config import load_arch
+from pipeline_sim.config import literal as toml_literal
+from pipeline_sim.config import pass_settings
 from pipeline_sim.regions import (RegionBatch, RegionCursor, RegionPlan, RegionSamples, bin_triangles, plan_regions,
                                   region_step, row_step)
 from pipeline_sim.render import render_scene
@@ -125,20 +126,16 @@ def _small(root, name, **image):
 CASES = {
     "hierarchical": {},
     "two_stage": {"tile_test.algorithm": "two_stage"},
-    "interleave_uvt": {"tile_test.algorithm": "interleave_uvt", "pipeline.sample_pattern": "interleave"},
-    "shading_rate_3": {"shading.shading_rate": 3.0, "tile_test.algorithm": "bbox"},
-    "per_sample_quadratic": {"shading.mode": "per_sample", "tile_test.edge_solver": "quadratic"},
-    "conservative": {"pipeline.mode": "conservative"},
+    "interleave_uvt": {"tile_test.algorithm": "interleave_uvt", "pass.sample_pattern": "interleave"},
+    "shading_rate_3": {"pass.shading_rate": 3.0, "tile_test.algorithm": "bbox"},
+    "per_sample_quadratic": {"pass.shading_mode": "per_sample", "tile_test.edge_solver": "quadratic"},
+    "conservative": {"pass.mode": "conservative"},
 }
 
 
-def _arch(overrides: dict, region_samples: int, zcull: bool):
-    arch = load_arch()
-    for key, value in {**overrides, "pipeline.region_samples": region_samples, "zcull.enabled": zcull}.items():
-        section, name = key.split(".")
-        setattr(getattr(arch, section), name, value)
-    arch.validate()
-    return arch
+def _settings(overrides: dict, region_samples: int, zcull: bool) -> dict:
+    values = {**overrides, "simulation.region_samples": region_samples, "zcull.enabled": zcull}
+    return pass_settings([f"{key}={toml_literal(value)}" for key, value in values.items()])
 
 
 @pytest.mark.parametrize("case", CASES)
@@ -150,10 +147,10 @@ def test_regions_render_the_whole_frames_image_and_counters(root, case):
     defocused triangle's cell can take samples from two regions, so hits and
     misses follow the order."""
     scene = _small(root, "default", width=120, height=72, spp=4)
-    whole = render_scene(scene, _arch(CASES[case], 0, zcull=False))
+    whole = render_scene(scene, **_settings(CASES[case], 0, zcull=False))
     assert whole.regions.count == 1
     budget = 120 * whole.depth.shape[2] * 20  # about 20 rows a region
-    cut = render_scene(scene, _arch(CASES[case], budget, zcull=False), keep_depth=True)
+    cut = render_scene(scene, **_settings(CASES[case], budget, zcull=False), keep_depth=True)
     assert cut.regions.count >= 2
     np.testing.assert_array_equal(cut.image, whole.image)
     np.testing.assert_array_equal(cut.depth, whole.depth)
@@ -172,24 +169,22 @@ def test_regions_with_zcull_keep_the_image(root):
     """With z-cull the culled tiles depend on what the ROP has written when a
     tile arrives, so counters may change with the order; the image may not."""
     scene = _small(root, "default", width=160, height=90, spp=4)
-    whole = render_scene(scene, _arch({}, 0, zcull=True))
+    whole = render_scene(scene, **_settings({}, 0, zcull=True))
     for budget in (160 * 4 * 16, 160 * 4 * 40):
-        cut = render_scene(scene, _arch({}, budget, zcull=True), keep_depth=True)
+        cut = render_scene(scene, **_settings({}, budget, zcull=True), keep_depth=True)
         assert cut.regions.count > 1
         np.testing.assert_array_equal(cut.image, whole.image)
         np.testing.assert_array_equal(cut.depth, whole.depth)
         assert cut.counter("zcull", "tiles_tested") == whole.counter("zcull", "tiles_tested")
     assert cut.depth is not None
-    assert render_scene(scene, _arch({}, 160 * 4 * 16, zcull=True)).depth is None  # not kept by default
+    assert render_scene(scene, **_settings({}, 160 * 4 * 16, zcull=True)).depth is None  # not kept by default
 
 
 def test_region_size_is_checked(tmp_path):
     from pipeline_sim.errors import UserError
 
-    arch = load_arch()
-    arch.pipeline.region_samples = -1
-    with pytest.raises(UserError, match="region_samples"):
-        arch.validate()
+    with pytest.raises(UserError, match="simulation.region_samples"):
+        pass_settings(["simulation.region_samples=-1"])
 
 
 @pytest.mark.parametrize("case", ["hierarchical", "per_sample_quadratic", "conservative"])
@@ -225,7 +220,7 @@ def test_units_hold_the_region_of_every_batch_they_run(root, monkeypatch, case, 
     for name, cls in (("SampleTester", Tester), ("Shading", Shading), ("Rop", Rop)):
         monkeypatch.setattr(render, name, cls)
     scene = _small(root, "default", width=120, height=72, spp=4)
-    res = render_scene(scene, _arch(CASES[case], 120 * 20, zcull=True), zcull_refresh=refresh)  # 16-20 rows
+    res = render_scene(scene, **_settings(CASES[case], 120 * 20, zcull=True), zcull_refresh=refresh)  # 16-20 rows
     plan = res.regions
     bounds = [plan.bounds(r) for r in range(plan.count)]
     for unit, log in held.items():

@@ -6,7 +6,7 @@ import numba as nb
 import numpy as np
 import pytest
 
-from pipeline_sim.config import load_arch
+from pipeline_sim.config import load_arch, pass_settings
 from pipeline_sim.draw import build_draw, draw_from_clip
 from pipeline_sim.render import RenderPass, run_pass, run_passes, scene_pass
 from pipeline_sim.scene import load_scene
@@ -59,7 +59,7 @@ def test_blur_converges_to_accumulation_buffer():
     for spp in spps:
         e = []
         for seed in range(3):
-            res = run_pass(RenderPass(draw=draw, arch=load_arch(overrides=["shading.mode='per_sample'"]), spp=spp,
+            res = run_pass(RenderPass(draw=draw, **pass_settings(["pass.shading_mode='per_sample'"]), spp=spp,
                                       seed=seed, clear_color=(0, 0, 0, 1)))
             e.append(np.sqrt(np.mean((res.image[..., :3] - ref) ** 2)))
         errs.append(np.mean(e))
@@ -97,9 +97,9 @@ def test_closed_mesh_covers_every_sample_exactly_once(root):
         lx[:, :, s] = proj[0, 0] * coc
         ly[:, :, s] = proj[1, 1] * coc
     d = draw_from_clip(q, r, lx, ly, np.ones((len(faces), 3)), 48, 32)
-    arch = load_arch(overrides=["triangle_setup.backface_culling=true", "rop.depth_test='always'",
-                                "rop.blend='add'", "shading.mode='per_sample'"])
-    res = run_pass(RenderPass(draw=d, arch=arch, spp=16, seed=4, clear_color=(0, 0, 0, 0)))
+    settings = pass_settings(["pass.backface_culling=true", "pass.depth_test='always'",
+                                "pass.blend='add'", "pass.shading_mode='per_sample'"])
+    res = run_pass(RenderPass(draw=d, **settings, spp=16, seed=4, clear_color=(0, 0, 0, 0)))
     counts = res.image[..., 0] * 16  # mean count x spp = covered samples of the pixel
     assert np.all(np.abs(res.image[..., 0] - 1.0) < 1e-6), np.unique(np.round(counts))
 
@@ -132,8 +132,8 @@ def test_samples_on_shared_edges_and_vertices_covered_once():
     q[..., 2] = 0.0
     q[..., 3] = wv
     d = draw_from_clip(q, None, None, None, np.ones((len(q), 3)), w, h)
-    arch = load_arch(overrides=["rop.depth_test='always'", "rop.blend='add'", "shading.mode='per_sample'"])
-    res = run_pass(RenderPass(draw=d, arch=arch, spp=1, sample_table=CENTRE,
+    settings = pass_settings(["pass.depth_test='always'", "pass.blend='add'", "pass.shading_mode='per_sample'"])
+    res = run_pass(RenderPass(draw=d, **settings, spp=1, sample_table=CENTRE,
                               clear_color=(0, 0, 0, 0)))
     # per-sample shading interpolates the unit color, so allow its rounding
     np.testing.assert_allclose(res.image[..., 0], np.ones((h, w)), atol=1e-6)
@@ -160,8 +160,8 @@ def test_conservative_mode_bounds_every_covered_pixel_and_time():
     r = q + np.array([1.0, 0.4, 0.0, 0.0])
     r[0, 1, 3] = 1.4
     d = draw_from_clip(q, r, None, None, np.ones((1, 3)), w, h)
-    arch = load_arch(overrides=["pipeline.mode='conservative'", "rop.depth_test='always'"])
-    res = run_pass(RenderPass(draw=d, arch=arch, spp=16, shader=interval_shader, clear_color=(2, 2, -1, -1)))
+    settings = pass_settings(["pass.mode='conservative'", "pass.depth_test='always'"])
+    res = run_pass(RenderPass(draw=d, **settings, spp=16, shader=interval_shader, clear_color=(2, 2, -1, -1)))
     assert "sample_tester" not in res.units_used
     t_lo, t_hi = res.image[..., 0], res.image[..., 2]
     found = 0
@@ -203,8 +203,8 @@ def test_later_pass_samples_earlier_pass_as_texture(root):
     first = scene_pass(scene, load_arch(), name="first")
     quad = np.array([[[-1, -1, 0, 1], [1, -1, 0, 1], [1, 1, 0, 1]], [[-1, -1, 0, 1], [1, 1, 0, 1], [-1, 1, 0, 1]]],
                     dtype=np.float64)
-    second = RenderPass(draw=draw_from_clip(quad, width=64, height=36), arch=load_arch(
-        overrides=["shading.mode='per_sample'"]), spp=1, name="second", shader=_texture_lookup_shader,
+    second = RenderPass(draw=draw_from_clip(quad, width=64, height=36), **pass_settings(
+        ["pass.shading_mode='per_sample'"]), spp=1, name="second", shader=_texture_lookup_shader,
         textures=("first",), sample_table=CENTRE)
     out = run_passes([first, second])
     np.testing.assert_allclose(out["second"].image, out["first"].image, atol=1e-6)
@@ -281,12 +281,12 @@ def test_user_clip_planes_limit_the_covered_samples():
     r = quad + np.array([1e-3, 0, 0, 0])
     lens = np.full((2, 3, 2), 0.01)
     d = draw_from_clip(quad, r, lens, lens, np.ones((2, 3)), 24, 16)
-    over = ["rop.depth_test='always'", "rop.blend='add'", "shading.mode='per_sample'"]
-    plain = run_pass(RenderPass(draw=d, arch=load_arch(overrides=over), spp=16, shader=_clip_probe_shader,
+    over = ["pass.depth_test='always'", "pass.blend='add'", "pass.shading_mode='per_sample'"]
+    plain = run_pass(RenderPass(draw=d, **pass_settings(over), spp=16, shader=_clip_probe_shader,
                                 clear_color=(0, 0, 0, 0)))
     assert plain.image[..., 0].max() > 100  # without clips, samples outside the box are covered
-    clipped = run_pass(RenderPass(draw=d, arch=load_arch(overrides=over + [
-        "tile_test.clip_t_hi=0.5", "tile_test.clip_u_lo=0.0"]), spp=16, shader=_clip_probe_shader,
+    clipped = run_pass(RenderPass(draw=d, **pass_settings(over + [
+        "pass.clip.t_hi=0.5", "pass.clip.u_lo=0.0"]), spp=16, shader=_clip_probe_shader,
         clear_color=(0, 0, 0, 0)))
     red = clipped.image[..., 0]
     assert red.max() <= 1.0  # no covered sample outside the clip box
@@ -301,8 +301,8 @@ def test_every_sample_pattern_converges_to_the_same_image(pattern):
     draw = draw_from_clip(q, r, lx, lx, color, 40, 28)
 
     def img(pat, spp):
-        arch = load_arch(overrides=[f"pipeline.sample_pattern='{pat}'", "shading.mode='per_sample'"])
-        return run_pass(RenderPass(draw=draw, arch=arch, spp=spp, seed=2)).image[..., :3]
+        settings = pass_settings([f"pass.sample_pattern='{pat}'", "pass.shading_mode='per_sample'"])
+        return run_pass(RenderPass(draw=draw, **settings, spp=spp, seed=2)).image[..., :3]
 
     ref = img("net", 256)
     far = np.sqrt(np.mean((img(pattern, 1) - ref) ** 2))

@@ -12,7 +12,8 @@ import operator
 import numpy as np
 import pytest
 
-from pipeline_sim.config import BLEND_MODES, DEPTH_FUNCS, RopConfig
+from pipeline_sim.config import RopConfig
+from pipeline_sim.definitions import BLEND_MODES, DEPTH_FUNCS
 from pipeline_sim.definitions import N_OPS, OP_ADD, OP_CMP
 from pipeline_sim.pass_state import PassState
 from units.rop import EVENTS, Rop

@@ -19,7 +19,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from pipeline_sim.config import ShadingConfig, load_arch
+from pipeline_sim.config import ShadingConfig, load_arch, pass_settings
 from pipeline_sim.counters import N_OPS
 from pipeline_sim.draw import draw_from_clip
 from pipeline_sim.render import RenderPass, run_pass
@@ -295,7 +295,7 @@ def cell_shader(inputs, params, textures, out, append):
         out[i, 3] = 1.0
 
 
-def _shading_unit(cfg, ref, width, height, spp, shader, rng):
+def _shading_unit(cfg, mode, rate, ref, width, height, spp, shader, rng):
     ntri = ref.shape[0]
     draw = draw_from_clip(rng.uniform(-1, 1, (ntri, 3, 4)), width=width, height=height)
     # vertex "color" = reference-camera (X, Y, W): interpolating it with the
@@ -309,7 +309,7 @@ def _shading_unit(cfg, ref, width, height, spp, shader, rng):
                               v=rng.uniform(-1, 1, npix * spp).astype(np.float32),
                               t=rng.random(npix * spp).astype(np.float32), tup=None)
     table = SimpleNamespace(ref=ref)
-    return Shading(cfg, cfg.mode, cfg.shading_rate, draw, table, samples, shader, np.array([cfg.shading_rate], np.float32), None, False)
+    return Shading(cfg, mode, rate, draw, table, samples, shader, np.array([rate], np.float32), None, False)
 
 
 def _batch(rng, tri, b0, b1, b2, npix, spp):
@@ -323,9 +323,8 @@ def _batch(rng, tri, b0, b1, b2, npix, spp):
 def test_cache_mode_color_is_shader_at_the_samples_request(entries, ways, policy):
     width, height, spp, rate = 32, 24, 4, 2.0
     rng, ref, _, _ = _setup(entries + ways, ntri=6, size=14.0, rate=rate, width=width, height=height)
-    cfg = ShadingConfig(mode="cache", cache_entries=entries, cache_ways=ways, replacement=policy,
-                        shading_rate=rate)
-    unit = _shading_unit(cfg, ref, width, height, spp, cell_shader, rng)
+    cfg = ShadingConfig(cache_entries=entries, cache_ways=ways, replacement=policy)
+    unit = _shading_unit(cfg, "cache", rate, ref, width, height, spp, cell_shader, rng)
     execs = 0
     for _ in range(5):
         tri, b0, b1, b2, keys = make_stream(rng, ref, int(rng.integers(1, 200)), rate, require_centre=True)
@@ -349,8 +348,7 @@ def test_per_sample_mode_shades_every_sample_once_at_its_own_point():
         out[:, 2] = inputs[IN_T]
         out[:, 3] = inputs[IN_TRIANGLE]
 
-    cfg = ShadingConfig(mode="per_sample")
-    unit = _shading_unit(cfg, ref, width, height, spp, recording_shader, rng)
+    unit = _shading_unit(ShadingConfig(), "per_sample", 1.0, ref, width, height, spp, recording_shader, rng)
     s = unit.samples
     for n in (0, 1, 37, 120):
         tri, b0, b1, b2, _ = make_stream(rng, ref, n, 1.0)
@@ -396,8 +394,8 @@ def test_per_sample_mode_in_the_pipeline_one_execution_per_covered_sample():
         rows.append(inputs[[IN_X, IN_Y, IN_T, IN_U, IN_V, IN_TRIANGLE]].T.copy())
         standard_shader(inputs, params, textures, out, append)
 
-    arch = load_arch(overrides=["shading.mode=per_sample", "pipeline.samples_per_batch=500"])
-    res = run_pass(RenderPass(draw=draw, arch=arch, spp=4, shader=counting_shader))
+    settings = pass_settings(["pass.shading_mode=per_sample", "simulation.samples_per_batch=500"])
+    res = run_pass(RenderPass(draw=draw, **settings, spp=4, shader=counting_shader))
     covered = res.counter("sample_tester", "samples_covered")
     allrows = np.concatenate(rows)
     assert covered > 1000
@@ -416,10 +414,10 @@ def test_cache_mode_in_the_pipeline_executes_fewer_shaders_and_counts_add_up():
 
 
 @pytest.mark.parametrize("overrides", [
-    ["shading.cache_entries=16", "shading.cache_ways=4", "pipeline.samples_per_batch=64"],
+    ["shading.cache_entries=16", "shading.cache_ways=4", "simulation.samples_per_batch=64"],
     ["shading.cache_entries=8", "shading.cache_ways=8", "shading.replacement=fifo",
-     "shading.shading_rate=2", "pipeline.samples_per_batch=33"],
-    ["shading.shading_rate=3"],
+     "pass.shading_rate=2", "simulation.samples_per_batch=33"],
+    ["pass.shading_rate=3"],
 ])
 def test_cache_mode_in_the_pipeline_colors_follow_keys(monkeypatch, overrides):
     """Through run_pass, with the cell shader: every sample reaching the ROP
@@ -430,8 +428,8 @@ def test_cache_mode_in_the_pipeline_colors_follow_keys(monkeypatch, overrides):
     from units.triangle_setup import TriangleSetup
 
     draw = _moving_draw(8, n=30)
-    arch = load_arch(overrides=overrides)
-    rate = arch.shading.shading_rate
+    settings = pass_settings(overrides)
+    arch, rate = settings["arch"], settings["state"].shading_rate
     setup = TriangleSetup(arch.triangle_setup, draw, arch.tile_traverser.tile_size)
     setup.run(np.arange(draw.n, dtype=np.int64))
     ref = setup.table.ref.copy()
@@ -444,7 +442,7 @@ def test_cache_mode_in_the_pipeline_colors_follow_keys(monkeypatch, overrides):
             return super().run(batch)
 
     monkeypatch.setattr(render, "Rop", RecordingRop)
-    res = run_pass(RenderPass(draw=draw, arch=arch, spp=4, shader=cell_shader,
+    res = run_pass(RenderPass(draw=draw, **settings, spp=4, shader=cell_shader,
                               params=np.array([rate], np.float32)))
     grid_w, grid_h = int(np.ceil(draw.width / rate)), int(np.ceil(draw.height / rate))
     checked = 0
@@ -478,7 +476,7 @@ def test_triangles_behind_reference_camera_keep_their_own_color():
     big = run_pass(RenderPass(draw=draw, arch=load_arch(), spp=16))
     # the right triangle is green, the left one red (flat material: color = vertex color)
     assert big.image[:, 16:, 1].sum() > 10 and big.image[:, 16:, 0].sum() == 0
-    small = run_pass(RenderPass(draw=draw, arch=load_arch(overrides=["pipeline.samples_per_batch=1"]), spp=16))
+    small = run_pass(RenderPass(draw=draw, **pass_settings(["simulation.samples_per_batch=1"]), spp=16))
     np.testing.assert_array_equal(small.image, big.image)
 
 

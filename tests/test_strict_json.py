@@ -68,7 +68,7 @@ def test_comparison_json_with_identical_images_and_nothing_tested(degenerate_sce
 def test_sweep_files_with_a_point_identical_to_its_reference(degenerate_scene, tmp_path):
     sweep = tmp_path / "sweep.toml"
     sweep.write_text(f'[sweep]\nscene = "{degenerate_scene.name}"\n[reference]\nspp = 4\n'
-                     '[grid]\n"shading.mode" = ["per_sample", "cache"]\n')
+                     '[grid]\n"pass.shading_mode" = ["per_sample", "cache"]\n')
     out = tmp_path / "sweep_out"
     assert main(["sweep", str(sweep), "--out", str(out), "--executor", "serial", "--quiet"]) == 0
     files = all_json(out)

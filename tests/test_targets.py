@@ -13,7 +13,8 @@ from scipy.ndimage import map_coordinates
 from hard_cases.harness import exact_coverage, make_draw, tri
 from pipeline_sim.config import RopConfig, load_arch
 from pipeline_sim.errors import UserError
-from pipeline_sim.pass_state import ClipPlanes, PassState, pass_state_of
+from pipeline_sim.pass_state import ClipPlanes, PassState
+from pipeline_sim.simulation import SimOptions
 from pipeline_sim.render import RenderPass, run_pass, run_passes
 from pipeline_sim.shaders import (IN_DEPTH, IN_SAMPLE, IN_T, IN_TRIANGLE, IN_TUPLE, IN_U, IN_V, IN_X, IN_Y,
                                   append_record, fetch, sample_layer)
@@ -21,10 +22,6 @@ from pipeline_sim.targets import AppendBuffer, LensRegion, ShaderOutput, Target
 from units.rop import Rop
 
 W, H = 24, 16
-
-
-def _state(**kw) -> PassState:
-    return pass_state_of(load_arch()).replace(**kw)
 
 
 # --------------------------------------------------------------------------- ROP: targets over a fragment list
@@ -114,7 +111,7 @@ def _two_triangles(height: int = H):
 
 def _count_pass(draw, *, append=None, pattern="net", spp=4, **kw) -> RenderPass:
     arch = load_arch()
-    state = _state(depth_test="always", shading_mode="per_sample", sample_pattern=pattern, blend="add")
+    state = PassState(depth_test="always", shading_mode="per_sample", sample_pattern=pattern, blend="add")
     return RenderPass(draw=draw, arch=arch, spp=spp, seed=2, state=state, shader=_append_sample_shader,
                       append=append, clear_color=(0, 0, 0, 0), **kw)
 
@@ -185,7 +182,7 @@ def test_lens_region_resolve_is_the_weighted_mean_of_the_kept_samples():
     targets = (Target("color", clear=(0.0, 0.0, 0.0, 0.0)), Target("views", resolve="lens", views=views),
                Target("raw", resolve="none"))
     p = RenderPass(draw=draw, arch=load_arch(), spp=16, seed=4, shader=_lens_shader, targets=targets,
-                   state=_state(depth_test="less", shading_mode="per_sample", sample_pattern="net"))
+                   state=PassState(depth_test="less", shading_mode="per_sample", sample_pattern="net"))
     res = run_pass(p)
     raw = res.sample_data["raw"].astype(np.float64)  # (H, W, spp, 4)
     s = res.samples
@@ -208,9 +205,9 @@ def test_resolve_none_over_several_regions_matches_one_region():
     targets = (Target("color", clear=(0.0, 0.0, 0.0, 0.0)), Target("raw", resolve="none"))
 
     def go(region_samples):
-        arch = load_arch(overrides=[f"pipeline.region_samples={region_samples}"])
-        return run_pass(RenderPass(draw=draw, arch=arch, spp=4, seed=4, shader=_lens_shader, targets=targets,
-                                   state=_state(shading_mode="per_sample")))
+        return run_pass(RenderPass(draw=draw, arch=load_arch(), spp=4, seed=4, shader=_lens_shader, targets=targets,
+                                   state=PassState(shading_mode="per_sample"),
+                                   simulation=SimOptions(region_samples=region_samples)))
     one, many = go(1 << 20), go(W * 4 * 4)
     assert many.regions.count > 1
     np.testing.assert_array_equal(many.sample_data["raw"], one.sample_data["raw"])
@@ -249,7 +246,7 @@ def test_a_pass_reads_an_earlier_pass_per_sample_depth_as_a_texture_array():
     quad = np.concatenate([tri((-1, -1, 0.5, 1), (1, -1, 0.5, 1), (1, 1, 0.5, 1)),
                            tri((-1, -1, 0.5, 1), (1, 1, 0.5, 1), (-1, 1, 0.5, 1))])
     receiver = make_draw(quad, width=W, height=H)
-    state = _state(shading_mode="per_sample", sample_pattern="net")
+    state = PassState(shading_mode="per_sample", sample_pattern="net")
     light = RenderPass(draw=occluder, arch=load_arch(), spp=8, seed=1, name="light", state=state)
     camera = RenderPass(draw=receiver, arch=load_arch(), spp=8, seed=3, name="camera", state=state,
                         shader=_shadow_shader, textures=("light.depth",),
@@ -275,9 +272,9 @@ def _counting_targets():
 
 
 def _counting(draws, **kw):
-    state = _state(depth_test="always", shading_mode="per_sample", blend="add", clip=ClipPlanes(0.0, 1.0))
-    return run_pass(RenderPass(draw=draws, arch=load_arch(overrides=["pipeline.triangles_per_batch=64"]), spp=8,
-                               seed=6, state=state, targets=_counting_targets(),
+    state = PassState(depth_test="always", shading_mode="per_sample", blend="add", clip=ClipPlanes(0.0, 1.0))
+    return run_pass(RenderPass(draw=draws, arch=load_arch(), spp=8, seed=6, state=state,
+                               simulation=SimOptions(triangles_per_batch=64), targets=_counting_targets(),
                                shader=_append_sample_shader, **kw))
 
 
@@ -304,7 +301,7 @@ def test_query_counts_samples_of_each_draw_that_pass_the_depth_test():
     front = make_draw(tri((-0.9, -0.9, 0.2, 1.0), (0.6, -0.5, 0.2, 1.0), (-0.4, 0.9, 0.2, 1.0)), width=W, height=H)
     back = make_draw(tri((-0.3, -0.8, 0.7, 1.0), (0.95, -0.1, 0.7, 1.0), (0.2, 0.95, 0.7, 1.0)), width=W, height=H)
     res = run_pass(RenderPass(draw=[front, back], arch=load_arch(), spp=8, seed=7,
-                              state=_state(depth_test="less", depth_write=True)))
+                              state=PassState(depth_test="less", depth_write=True)))
     c0, _, _ = exact_coverage(front, res.samples)
     c1, _, _ = exact_coverage(back, res.samples)
     want = [int((c0 > 0).sum()), int(((c1 > 0) & (c0 == 0)).sum())]

@@ -21,7 +21,8 @@ import pytest
 
 import units.zcull as zc
 from pipeline_sim.compare import ALGORITHMS
-from pipeline_sim.config import CYCLES, apply_overrides, load_arch, setting_effects
+from pipeline_sim.config import CYCLES, apply_overrides, load_arch, pass_settings, setting_effects
+from pipeline_sim.simulation import SimOptions
 from pipeline_sim.counters import COMMON
 from pipeline_sim.render import render_scene
 from pipeline_sim.scene import load_scene
@@ -41,9 +42,9 @@ VARIANTS = [
     ["sample_tester.throughput=2", "sample_tester.instances=1"],
     ["rop.bandwidth=8"],
     ["zcull.latency=2000"],
-    ["pipeline.triangles_per_batch=8"],
-    ["pipeline.tiles_per_batch=64"],
-    ["pipeline.samples_per_batch=4096"],
+    ["simulation.triangles_per_batch=8"],
+    ["simulation.tiles_per_batch=64"],
+    ["simulation.samples_per_batch=4096"],
 ]
 
 
@@ -55,7 +56,7 @@ def scene(root):
 @pytest.fixture(scope="module")
 def timed(scene):
     """The default (timed) refresh: the baseline and every variant."""
-    return {tuple(v): render_scene(scene, load_arch(overrides=v), spp=SPP) for v in [[]] + VARIANTS}
+    return {tuple(v): render_scene(scene, **pass_settings(v), spp=SPP) for v in [[]] + VARIANTS}
 
 
 def _values(result):
@@ -107,9 +108,9 @@ def test_ordered_refresh_moves_no_counter(scene, timed):
     assert base.counter("zcull", "tiles_culled") > 0
     cycles = {base.timing.frame_cycles}
     for v in VARIANTS:
-        if any(o.startswith("pipeline.triangles_per_batch") for o in v):
+        if any(o.startswith("simulation.triangles_per_batch") for o in v):
             continue  # the ordered refresh's step: it may move z-cull's counters
-        res = render_scene(scene, load_arch(overrides=v), spp=SPP, zcull_refresh="ordered")
+        res = render_scene(scene, **pass_settings(v), spp=SPP, zcull_refresh="ordered")
         np.testing.assert_array_equal(res.image, timed[()].image)
         assert res.counters.equals(base.counters), v
         cycles.add(res.timing.frame_cycles)
@@ -119,9 +120,9 @@ def test_ordered_refresh_moves_no_counter(scene, timed):
 def test_ordered_refresh_over_screen_regions(scene, timed):
     """Region by region (each triangle batch belongs to one), the ordered refresh gives
     the same image and still no counter that moves with the timing."""
-    regions = ["pipeline.region_samples=40000"]
-    a = render_scene(scene, load_arch(overrides=regions), spp=SPP, zcull_refresh="ordered")
-    b = render_scene(scene, load_arch(overrides=regions + ["pipeline.queue_depth=32", "tile_test.throughput=0.05"]),
+    regions = ["simulation.region_samples=40000"]
+    a = render_scene(scene, **pass_settings(regions), spp=SPP, zcull_refresh="ordered")
+    b = render_scene(scene, **pass_settings(regions + ["pipeline.queue_depth=32", "tile_test.throughput=0.05"]),
                      spp=SPP, zcull_refresh="ordered")
     assert a.region_info["count"] > 5
     np.testing.assert_array_equal(a.image, timed[()].image)
@@ -132,7 +133,7 @@ def _zmax_by_triangle_batch(scene, arch, refresh, monkeypatch):
     """Per triangle batch, z-cull's zmax boxes at each of its z-cull calls."""
     seen: dict[int, list[np.ndarray]] = {}
     run = zc.ZCull.run
-    tpb = arch.pipeline.triangles_per_batch
+    tpb = SimOptions().triangles_per_batch
 
     def spy(self, tiles):
         if len(tiles["tri"]):

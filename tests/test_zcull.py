@@ -19,7 +19,7 @@ import pytest
 import pipeline_sim.render as render
 import units.rop as rop_mod
 import units.zcull as zc
-from pipeline_sim.config import RopConfig, load_arch
+from pipeline_sim.config import RopConfig, load_arch, pass_settings
 from pipeline_sim.pass_state import PassState
 from pipeline_sim.draw import draw_from_clip
 from pipeline_sim.regions import RegionPlan, RegionSamples
@@ -32,7 +32,7 @@ from units.triangle_setup import TriangleSetup
 W, H, SPP = 64, 48, 4
 # small batches and FIFOs (one default batch of records each) keep z-cull close
 # behind the ROP, so the occluder's depths are known before the hidden tiles come
-BASE = ["pipeline.triangles_per_batch=2", "pipeline.tiles_per_batch=64", "pipeline.queue_depth=1"]
+BASE = ["simulation.triangles_per_batch=2", "simulation.tiles_per_batch=64", "pipeline.queue_depth=1"]
 
 
 def occluded_scene(seed, n_behind=400, lens=True, motion=True):
@@ -65,15 +65,15 @@ def occluded_scene(seed, n_behind=400, lens=True, motion=True):
 
 
 def render_with(draw, overrides, **kw):
-    return run_pass(RenderPass(draw=draw, arch=load_arch(overrides=BASE + overrides), spp=SPP, **kw))
+    return run_pass(RenderPass(draw=draw, **pass_settings(BASE + overrides), spp=SPP, **kw))
 
 
-@pytest.mark.parametrize("overrides", [["zcull.enabled=false"], ["rop.depth_test=always"]])
+@pytest.mark.parametrize("overrides", [["zcull.enabled=false"], ["pass.depth_test=always"]])
 def test_bypassed_zcull_runs(overrides):
     """Regression: with z-cull bypassed the tile records used to reach the
     sample tester without the 'noread' field (KeyError)."""
     draw = occluded_scene(6, n_behind=20)
-    res = run_pass(RenderPass(draw=draw, arch=load_arch(overrides=overrides), spp=SPP))
+    res = run_pass(RenderPass(draw=draw, **pass_settings(overrides), spp=SPP))
     assert "zcull" not in res.units_used
     assert res.counter("rop", "depth_reads_skipped") == 0  # nobody claimed a skippable read
 
@@ -97,8 +97,8 @@ def reference_image(scene):
 @pytest.mark.parametrize("refresh", ["timed", "ordered"])
 @pytest.mark.parametrize("func", ["less", "lequal"])
 def test_zcull_on_off_bit_identical_and_culls(scene, func, refresh):
-    off = render_with(scene, ["zcull.enabled=false", f"rop.depth_test={func}"])
-    on = render_with(scene, [f"rop.depth_test={func}"], zcull_refresh=refresh)
+    off = render_with(scene, ["zcull.enabled=false", f"pass.depth_test={func}"])
+    on = render_with(scene, [f"pass.depth_test={func}"], zcull_refresh=refresh)
     assert "zcull" in on.units_used
     np.testing.assert_array_equal(on.image, off.image)
     np.testing.assert_array_equal(on.depth, off.depth)
@@ -162,8 +162,9 @@ def _tile_samples(table, samples, tri, tx, ty, ts):
 @pytest.mark.parametrize("func", ["less", "lequal"])
 def test_culled_records_cannot_pass_depth_test(monkeypatch, scene, func, refresh):
     calls = _capture(monkeypatch)
-    arch = load_arch(overrides=BASE + [f"rop.depth_test={func}"])
-    res = run_pass(RenderPass(draw=scene, arch=arch, spp=SPP, zcull_refresh=refresh))
+    settings = pass_settings(BASE + [f"pass.depth_test={func}"])
+    arch = settings["arch"]
+    res = run_pass(RenderPass(draw=scene, **settings, spp=SPP, zcull_refresh=refresh))
     ts = arch.tile_traverser.tile_size
     setup = TriangleSetup(arch.triangle_setup, scene, ts)
     setup.run(np.arange(scene.n, dtype=np.int64))
@@ -194,8 +195,8 @@ def test_culled_records_cannot_pass_depth_test(monkeypatch, scene, func, refresh
 @pytest.mark.parametrize("func", ["greater", "always", "gequal", "equal", "never"])
 def test_zcull_inactive_for_other_depth_functions(scene, func):
     clear = -1.0 if func in ("greater", "gequal") else 1.0
-    on = render_with(scene, [f"rop.depth_test={func}"], clear_depth=clear)
-    off = render_with(scene, [f"rop.depth_test={func}", "zcull.enabled=false"], clear_depth=clear)
+    on = render_with(scene, [f"pass.depth_test={func}"], clear_depth=clear)
+    off = render_with(scene, [f"pass.depth_test={func}", "zcull.enabled=false"], clear_depth=clear)
     assert "zcull" not in on.units_used
     assert culled(on) == 0 and on.counter("zcull", "records_in") == 0
     np.testing.assert_array_equal(on.image, off.image)

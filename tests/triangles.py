@@ -91,10 +91,8 @@ def setup_and_tiles(q, r, lx, ly, width=48, height=32, tile_size=8, coarse_facto
                                 f"tile_test.edge_test={'true' if edge_test else 'false'}",
                                 f"tile_test.lens_bounds={'true' if lens_bounds else 'false'}",
                                 f"tile_test.gamma='{gamma}'", f"tile_test.algorithm='{algorithm}'",
-                                f"tile_test.edge_solver='{edge_solver}'",
-                                f"pipeline.sample_pattern='{'interleave' if tuples is not None else 'net'}'",
-                                f"triangle_setup.backface_culling={'true' if backface_culling else 'false'}"])
-    setup = TriangleSetup(arch.triangle_setup, d, tile_size, hull=algorithm == "hull")
+                                f"tile_test.edge_solver='{edge_solver}'"])
+    setup = TriangleSetup(arch.triangle_setup, d, tile_size, backface_culling, hull=algorithm == "hull")
     ids = np.arange(d.n, dtype=np.int64)
     alive, _, _ = setup.run(ids)
     trav = TileTraverser(arch.tile_traverser, setup.table, tile_size, width, height,

@@ -50,9 +50,8 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from pipeline_sim.config import load_arch
+from pipeline_sim.config import load_arch, pass_settings
 from pipeline_sim.draw import draw_from_clip
-from pipeline_sim.pass_state import pass_state_of
 from pipeline_sim.render import RenderPass, run_pass
 from triangles import sample_inside_points, setup_and_tiles
 from units.sample_tester import inside_test
@@ -63,7 +62,7 @@ CLEAR_DEPTH = 4.0  # outside [-1, 1]: an untouched sample is recognisable in the
 
 # per-sample shading of a unit color, additive blending, no depth test: the
 # resolved red channel times spp is the number of (triangle, sample) hits of a pixel
-COUNT = ("rop.depth_test='always'", "rop.blend='add'", "shading.mode='per_sample'")
+COUNT = ("pass.depth_test='always'", "pass.blend='add'", "pass.shading_mode='per_sample'")
 INTERVAL_NAMES = ("t_lo", "t_hi", "u_lo", "u_hi", "v_lo", "v_hi", "z_lo", "z_hi")
 
 
@@ -98,17 +97,18 @@ def make_draw(q, r=None, lx=None, ly=None, *, width=W, height=H, depth_w=None, c
     return d
 
 
-def arch(*overrides, algorithm="hierarchical", backface=False):
-    ov = [f"tile_test.algorithm='{algorithm}'", f"triangle_setup.backface_culling={str(backface).lower()}"]
-    return load_arch(overrides=ov + list(overrides))
+def settings(*overrides, algorithm="hierarchical", backface=False):
+    """The RenderPass keywords (arch, state, simulation) of these overrides, algorithm and backface culling."""
+    ov = [f"tile_test.algorithm='{algorithm}'", f"pass.backface_culling={str(backface).lower()}"]
+    return pass_settings(ov + list(overrides))
 
 
 def render(draw, *, spp=16, seed=0, overrides=(), algorithm="hierarchical", backface=False, pattern="net",
            table=None, clear_depth=1.0, clear_color=(0.0, 0.0, 0.0, 0.0)):
-    a = arch(*overrides, algorithm=algorithm, backface=backface)
-    return run_pass(RenderPass(draw=draw, arch=a, spp=spp, seed=seed, clear_color=clear_color,
-                               clear_depth=clear_depth, sample_table=table,
-                               state=pass_state_of(a).replace(sample_pattern=pattern)))
+    s = settings(*overrides, algorithm=algorithm, backface=backface)
+    return run_pass(RenderPass(draw=draw, arch=s["arch"], simulation=s["simulation"], spp=spp, seed=seed,
+                               clear_color=clear_color, clear_depth=clear_depth, sample_table=table,
+                               state=s["state"].replace(sample_pattern=pattern)))
 
 
 def render_counts(draw, **kw):
@@ -407,7 +407,7 @@ VARIANTS = [(), ("tile_traverser.coarse_factor=1",), ("tile_traverser.tile_size=
 if _has_key("tile_test", "gamma"):
     VARIANTS.append(("tile_test.gamma='tile'",))
 # every other culling algorithm, and the quadratic edge test per tile and per pixel
-INTERLEAVE = ("tile_test.algorithm='interleave_uvt'", "pipeline.sample_pattern='interleave'")
+INTERLEAVE = ("tile_test.algorithm='interleave_uvt'", "pass.sample_pattern='interleave'")
 VARIANTS += [("tile_test.algorithm='hull'",), ("tile_test.algorithm='dual_space'",),
              ("tile_test.algorithm='two_stage'",), ("tile_test.algorithm='two_stage'", "tile_traverser.tile_size=1"),
              ("tile_test.edge_solver='quadratic'",),
@@ -522,7 +522,7 @@ def check_bbox(case, seed=0):
     out = assert_bbox_matches_hierarchical(draw, spp=min(case.spp, 8), seed=seed, backface=case.backface,
                                            what=case.name)
     per_sample = render(draw, spp=min(case.spp, 8), seed=seed, backface=case.backface,
-                        overrides=("shading.mode='per_sample'",))
+                        overrides=("pass.shading_mode='per_sample'",))
     assert_finite(per_sample, case.name)
     for res in (out["hierarchical"], per_sample):
         im = res.image[..., :3]
@@ -633,9 +633,9 @@ def check_conservative_mode(case, spp=64, seed=5, ztol=1e-5):
 
     assert len(case.q) == 1
     d = case.draw()
-    a = load_arch(overrides=["pipeline.mode='conservative'", "rop.depth_test='always'",
-                             f"triangle_setup.backface_culling={str(case.backface).lower()}"])
-    res = run_pass(RenderPass(draw=d, arch=a, spp=1, shader=interval_shader, clear_color=(2, 2, -1, -1),
+    s = pass_settings(["pass.mode='conservative'", "pass.depth_test='always'",
+                       f"pass.backface_culling={str(case.backface).lower()}"])
+    res = run_pass(RenderPass(draw=d, **s, spp=1, shader=interval_shader, clear_color=(2, 2, -1, -1),
                               clear_depth=CLEAR_DEPTH))
     assert_finite(res, f"{case.name} conservative mode")
     s = make_samples(case.width, case.height, spp, seed, lens=d.has_lens, motion=d.has_motion, pattern="net")

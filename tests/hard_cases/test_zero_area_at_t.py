@@ -94,7 +94,7 @@ def test_samples_at_the_degenerate_instant(case):
     table = centre_table([(0.0, 0.0, 0.0), (0.5, 0.0, 0.0), (0.5, 0.3, 0.3), (1.0, 0.0, 0.0)])
     for shading in ("per_sample", "cache"):
         res = assert_exact_coverage(case.draw(), spp=len(table), pattern="table", table=table, what=case.name,
-                                    overrides=(f"shading.mode='{shading}'",))
+                                    overrides=(f"pass.shading_mode='{shading}'",))
         assert_finite(res, case.name)
 
 
@@ -120,7 +120,7 @@ def test_degenerate_for_the_whole_shutter(lens):
     lx, ly = (None, None) if lens is None else lens_for(q, r, *lens)
     d = make_draw(q, r, lx, ly)
     for shading in ("per_sample", "cache"):
-        res = render_counts(d, spp=16, overrides=(f"shading.mode='{shading}'",))
+        res = render_counts(d, spp=16, overrides=(f"pass.shading_mode='{shading}'",))
         assert_finite(res, "collinear")
         assert counts_of(res).sum() <= 2, "a segment covered a visible area"
     assert_finite(render(d, spp=16), "collinear default arch")

@@ -1,0 +1,36 @@
+"""Simulation options: how the simulator runs a pass, neither the machine nor the work.
+
+Batch sizes set the granularity of the timing model (records per SimPy
+batch between units) and ``region_samples`` how much of a frame is held at
+once; none of them changes the image. A scene file sets them in its
+``[simulation]`` table, ``--set simulation.KEY=VALUE`` on top of that.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+from pipeline_sim.settings import FORBID, COUNTERS, CYCLES, count, setting
+
+
+@dataclass(frozen=True)
+class SimOptions:
+    """Batching and screen regions of a run."""
+
+    __pydantic_config__ = FORBID
+
+    triangles_per_batch: count(1) = setting(64, CYCLES, "triangles per SimPy batch into triangle setup")
+    tiles_per_batch: count(1) = setting(512, CYCLES, "(triangle, tile) records per batch between tile units")
+    samples_per_batch: count(1) = setting(65536, CYCLES, "covered-sample records per batch between sample units")
+    region_samples: count(0) = setting(
+        1 << 22, COUNTERS, "a frame of more samples is rendered in screen regions (bands of whole coarse-tile "
+        "rows) of at most this many samples, to bound memory; 0: one region. Same image at every size; z-cull "
+        "counters and cycles follow the order")
+
+    def replace(self, **changes: Any) -> "SimOptions":
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
