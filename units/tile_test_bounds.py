@@ -1,11 +1,7 @@
-"""The tile test's shared bounds and the record loop every culling algorithm's tile kernel runs.
+"""The tile test's shared bounds, which the culling algorithms (``units.culling``) combine.
 
-Part of the tile test unit (docs/pipeline.md §2.3). A culling algorithm
-(``units.culling``) writes its tile kernel as a loop over the (triangle,
-tile) records: ``tile_start`` gives a record's tile rectangle and time span
-(the clip planes applied), the algorithm narrows or rejects with the bounds
-here or its own, and ``tile_accept`` adds z^ and writes the record's
-intervals. The bounds:
+Part of the tile test unit (docs/pipeline.md §2.3); ``units.tile_test.tile_test_kernel``
+applies them per (triangle, tile) record. The bounds:
 
 * t^ from the moving axis-aligned box in 2DH against the four tile frustum
   planes (Munkberg11 §4.1, eq. 1-2); the box includes the lens shift at u, v = +-1,
@@ -29,30 +25,17 @@ make it looser, never tighter.
 
 from __future__ import annotations
 
-from collections import namedtuple
-
 import numba as nb
 import numpy as np
 
 from pipeline_sim.definitions import OP_CMP, OP_MADD, OP_MUL, OP_RCP
-from pipeline_sim.records import INTERVALS, TILE, Field, RecordType
-from units.rounding import F32_REL, MARGIN_PX
-from units.triangle_setup import FLAG_LENS, FLAG_PLANE, FLAG_WPOS
+from pipeline_sim.records import RecordType
+from units.rounding import F32_REL
 
 # the events of every tile test, first in its event vector; an algorithm's own follow (units.culling)
 CORE_EVENTS = ("rejected_box", "rejected_edge", "rejected_lens", "accepted")
 EV_REJ_BOX, EV_REJ_EDGE, EV_REJ_LENS, EV_ACCEPT = range(len(CORE_EVENTS))
 N_CORE = len(CORE_EVENTS)
-
-#: a tile kernel's settings: the tile grid, the tile_test section's switches, the user clip planes
-#: (t_lo, t_hi, u_lo, u_hi, v_lo, v_hi), the draw's depth relation z/w = c1 + c0 / w and the sample
-#: set's (u, v, t) tuples (Interleave UVT; else none)
-TileConfig = namedtuple("TileConfig", ("tile_size", "width", "height", "edge_test", "quadratic", "gamma_per_tile",
-                                       "lens_bounds", "clips", "depth_c1", "depth_c0", "tuples"))
-#: what a tile kernel writes per record: whether it survives, and its intervals
-TESTED = RecordType("TileTested", (Field("keep", np.bool_, (), "tile_test", "the record survives"),
-                                   *(TILE.field(k) for k in INTERVALS)), __name__)
-TileTested = TESTED.tuple_class
 
 # an algorithm without fields of its own extends the records by these
 NO_TRIANGLE_FIELDS = RecordType("NoTriangleFields", (), __name__)
@@ -314,83 +297,3 @@ def plane_w_bounds(plane_n, plane_d, tri, x0, x1, y0, y1, ta, tb, ops):
         ops[OP_RCP] += 2
         ops[OP_MUL] += 2
     return w_lo, w_hi
-
-
-@nb.njit(cache=True, inline="always")
-def tile_start(tiles, tris, cfg, i):
-    """Record ``i``: its triangle, flags, tile rectangle (pixels, widened by the margin) and time
-    span [ta, tb] bounded by the user clip planes (Nilsson12 §2)."""
-    tri = tiles.tri[i]
-    ts = cfg.tile_size
-    x0 = tiles.tx[i] * ts - MARGIN_PX
-    x1 = min((tiles.tx[i] + 1) * ts, cfg.width) + MARGIN_PX
-    y0 = tiles.ty[i] * ts - MARGIN_PX
-    y1 = min((tiles.ty[i] + 1) * ts, cfg.height) + MARGIN_PX
-    ta = max(tris.t_span[tri, 0], cfg.clips[0])
-    tb = min(tris.t_span[tri, 1], cfg.clips[1])
-    return tri, tris.flags[tri], x0, x1, y0, y1, ta, tb
-
-
-@nb.njit(cache=True, inline="always")
-def live_lens_bounds(tris, tri, fl, cfg, x0, x1, y0, y1, lo, hi, ops, events):
-    """u^, v^ within the clip planes, narrowed by ``lens_interval`` for a defocused triangle in
-    front of the camera (Wu13 §3.3, stage 1; a triangle without lens shift is seen alike from every
-    lens position); (False, ...) when rejected."""
-    ulo, uhi, vlo, vhi = cfg.clips[2], cfg.clips[3], cfg.clips[4], cfg.clips[5]
-    if (fl & FLAG_LENS) != 0 and (fl & FLAG_WPOS) != 0:
-        a, b = lens_interval(tris.p0, tris.dp, tris.l0, tris.dl, tri, 0, x0, x1, lo, hi, ops)
-        ulo, uhi = max(ulo, a), min(uhi, b)
-        if ulo > uhi:
-            events[EV_REJ_LENS] += 1
-            return False, ulo, uhi, vlo, vhi
-        a, b = lens_interval(tris.p0, tris.dp, tris.l0, tris.dl, tri, 1, y0, y1, lo, hi, ops)
-        vlo, vhi = max(vlo, a), min(vhi, b)
-        if vlo > vhi:
-            events[EV_REJ_LENS] += 1
-            return False, ulo, uhi, vlo, vhi
-    return True, ulo, uhi, vlo, vhi
-
-
-@nb.njit(cache=True, inline="always")
-def tile_accept(tris, cfg, out, i, tri, fl, x0, x1, y0, y1, lo, hi, ulo, uhi, vlo, vhi, ops, events):
-    """z^ of record ``i`` (Nilsson12 App. A: vertex depths at the ends of t^, then the moving
-    planes' w bounds) and its intervals into ``out``; an empty u^ or v^ rejects it."""
-    p0 = tris.p0
-    dp = tris.dp
-    zl, zh = -1.0, 1.0
-    if (fl & FLAG_WPOS) != 0:
-        zl, zh = np.inf, -np.inf
-        for s in range(2):
-            t = lo if s == 0 else hi
-            for k in range(3):
-                z = (p0[tri, k, 2] + t * dp[tri, k, 2]) / (p0[tri, k, 3] + t * dp[tri, k, 3])
-                zl = min(zl, z)
-                zh = max(zh, z)
-        if (fl & FLAG_PLANE) != 0:
-            w_lo, w_hi = plane_w_bounds(tris.plane_n, tris.plane_d, tri, x0, x1, y0, y1, lo, hi, ops)
-            # z/w = c1 + c0 / w grows with w (c0 < 0)
-            if w_hi < np.inf:
-                zh = min(zh, cfg.depth_c1 + cfg.depth_c0 / w_hi)
-            if w_lo > 0.0:
-                zl = max(zl, cfg.depth_c1 + cfg.depth_c0 / w_lo)
-        pad = 1e-6 * (1.0 + abs(zl) + abs(zh))
-        zl = max(-1.0, zl - pad)
-        zh = min(1.0, zh + pad)
-        ops[OP_MADD] += 12
-        ops[OP_RCP] += 6
-        ops[OP_MUL] += 6
-        ops[OP_CMP] += 12
-    ops[OP_CMP] += 6
-    if ulo > uhi or vlo > vhi:
-        events[EV_REJ_LENS] += 1
-        return
-    out.keep[i] = True
-    events[EV_ACCEPT] += 1
-    out.t_lo[i] = lo
-    out.t_hi[i] = hi
-    out.u_lo[i] = ulo
-    out.u_hi[i] = uhi
-    out.v_lo[i] = vlo
-    out.v_hi[i] = vhi
-    out.z_lo[i] = zl
-    out.z_hi[i] = zh

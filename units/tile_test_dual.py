@@ -42,14 +42,11 @@ import numpy as np
 
 from pipeline_sim.definitions import OP_ADD, OP_CMP, OP_MADD, OP_MUL, OP_RCP
 from units.rounding import F32_REL
-from units.tile_test_bounds import (N_CORE, NO_TILE_FIELDS, NO_TRIANGLE_FIELDS, live_lens_bounds, tile_accept,
-                                    tile_start)
-from units.triangle_setup import FLAG_WPOS
+from units.tile_test_bounds import NO_TILE_FIELDS, NO_TRIANGLE_FIELDS
 
 # the culling algorithm "dual_space" (units.culling): lens bounds, then time bounds over that lens range
 NAME = "dual_space"
 EVENTS = ("rejected_dual_time",)
-EV_REJ_DUAL = N_CORE  # its own events follow the tile test's core ones
 TRIANGLE_EXT = NO_TRIANGLE_FIELDS
 TILE_EXT = NO_TILE_FIELDS
 COARSE_TEST = False
@@ -297,21 +294,3 @@ def two_stage_lines(p0, dp, l0, dl, tri, axis, a0, a1, ulo, uhi, ta, tb, ops):
     if not (np.isfinite(lo_c) and np.isfinite(lo_s) and np.isfinite(hi_c) and np.isfinite(hi_s)):
         return ta, 0.0, tb, 0.0
     return lo_c, lo_s, hi_c, hi_s
-
-
-@nb.njit(cache=True)
-def tile_kernel(tiles, tris, ext, cfg, out, ext_out, ops, events):
-    """Lens bounds (Wu13 §3.3, stage 1), then the dual-space time bounds over them (Laine11, Wu13 §2)."""
-    for i in range(tiles.tri.shape[0]):
-        tri, fl, x0, x1, y0, y1, ta, tb = tile_start(tiles, tris, cfg, i)
-        ok, ulo, uhi, vlo, vhi = live_lens_bounds(tris, tri, fl, cfg, x0, x1, y0, y1, ta, tb, ops, events)
-        if not ok:
-            continue
-        lo, hi = ta, tb
-        if (fl & FLAG_WPOS) != 0:
-            lo, hi = dual_time_interval(tris.p0, tris.dp, tris.l0, tris.dl, tri, x0, x1, y0, y1, ulo, uhi, vlo, vhi,
-                                        lo, hi, ops)
-            if lo > hi:
-                events[EV_REJ_DUAL] += 1
-                continue
-        tile_accept(tris, cfg, out, i, tri, fl, x0, x1, y0, y1, lo, hi, ulo, uhi, vlo, vhi, ops, events)

@@ -47,8 +47,7 @@ import numpy as np
 
 from pipeline_sim.definitions import OP_ADD, OP_CMP, OP_MADD, OP_MUL, OP_RCP
 from pipeline_sim.records import Field, RecordType
-from units.rounding import F32_REL
-from units.tile_test_bounds import N_CORE, NO_TILE_FIELDS, tile_accept, tile_start
+from units.tile_test_bounds import NO_TILE_FIELDS
 from units.triangle_setup import FLAG_LENS, FLAG_WPOS
 
 HULL_MAX = 6  # six points have at most six hull vertices
@@ -56,7 +55,6 @@ HULL_MAX = 6  # six points have at most six hull vertices
 # the culling algorithm "hull" (units.culling): the triangle table gains each triangle's hull
 NAME = "hull"
 EVENTS = ("rejected_hull",)
-EV_REJ_HULL = N_CORE  # its own events follow the tile test's core ones
 TRIANGLE_EXT = RecordType("HullTable", (
     Field("hull", np.float64, (HULL_MAX, 2), NAME, "screen convex hull of the moving vertices, counter-clockwise"),
     Field("hull_n", np.int32, (), NAME, "its vertex count; 0 when not computed"),
@@ -266,23 +264,3 @@ def _hulls(ids, p0, dp, t_span, flags, hull, hull_n, hull_off, ops):
 def setup_extras(ids: np.ndarray, tris, ext, ops: np.ndarray) -> None:
     """Triangle setup's part for the hull test: the hulls of the triangles ``ids`` that survived setup."""
     _hulls(ids, tris.p0, tris.dp, tris.t_span, tris.flags, ext.hull, ext.hull_n, ext.hull_off, ops)
-
-
-@nb.njit(cache=True)
-def tile_kernel(tiles, tris, ext, cfg, out, ext_out, ops, events):
-    """The hull of a motion-only triangle in front of the camera against the tile (McGuire10, Wu13 §3.2);
-    other triangles as BBOX."""
-    for i in range(tiles.tri.shape[0]):
-        tri, fl, x0, x1, y0, y1, ta, tb = tile_start(tiles, tris, cfg, i)
-        if (fl & FLAG_WPOS) != 0 and (fl & FLAG_LENS) == 0 and ext.hull_n[tri] > 0:
-            # the sample tester's float32 vertices move the true hull by ~F32_REL of its coordinates
-            mag = 1.0
-            for k in range(ext.hull_n[tri]):
-                mag = max(mag, abs(ext.hull[tri, k, 0]) + abs(ext.hull[tri, k, 1]))
-            pad = F32_REL * mag
-            if not hull_overlaps_tile(ext.hull, ext.hull_n, ext.hull_off, tri, x0 - pad, x1 + pad, y0 - pad, y1 + pad,
-                                      ops):
-                events[EV_REJ_HULL] += 1
-                continue
-        tile_accept(tris, cfg, out, i, tri, fl, x0, x1, y0, y1, ta, tb, cfg.clips[2], cfg.clips[3], cfg.clips[4],
-                    cfg.clips[5], ops, events)

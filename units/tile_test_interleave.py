@@ -18,12 +18,11 @@ import numpy as np
 from pipeline_sim.definitions import OP_CMP, OP_MADD, OP_MUL, OP_RCP
 from pipeline_sim.records import Field, RecordType
 from units.rounding import F32_REL
-from units.tile_test_bounds import N_CORE, NO_TRIANGLE_FIELDS, tile_accept, tile_start
+from units.tile_test_bounds import NO_TRIANGLE_FIELDS
 
 # the culling algorithm "interleave_uvt" (units.culling): needs the sample set's tuples
 NAME = "interleave_uvt"
 EVENTS = ("rejected_tuples",)
-EV_REJ_TUPLES = N_CORE  # its own events follow the tile test's core ones
 TRIANGLE_EXT = NO_TRIANGLE_FIELDS
 TILE_EXT = RecordType("TupleMask", (
     Field("mask", np.uint64, (), NAME, "bit i: tuple i may cover a sample of the tile"),
@@ -80,17 +79,3 @@ def interleave_mask(p0, dp, l0, dl, tri, tuples, x0, x1, y0, y1, ta, tb, ops):
         if behind or (xmx >= x0 and xmn <= x1 and ymx >= y0 and ymn <= y1):
             mask |= np.uint64(1) << np.uint64(i)
     return mask
-
-
-@nb.njit(cache=True)
-def tile_kernel(tiles, tris, ext, cfg, out, ext_out, ops, events):
-    """Each record's tuple mask (Fatahalian09); a record no tuple reaches is rejected."""
-    for i in range(tiles.tri.shape[0]):
-        tri, fl, x0, x1, y0, y1, ta, tb = tile_start(tiles, tris, cfg, i)
-        mk = interleave_mask(tris.p0, tris.dp, tris.l0, tris.dl, tri, cfg.tuples, x0, x1, y0, y1, ta, tb, ops)
-        if mk == 0:
-            events[EV_REJ_TUPLES] += 1
-            continue
-        ext_out.mask[i] = mk
-        tile_accept(tris, cfg, out, i, tri, fl, x0, x1, y0, y1, ta, tb, cfg.clips[2], cfg.clips[3], cfg.clips[4],
-                    cfg.clips[5], ops, events)
