@@ -1,14 +1,14 @@
 """Tile test: a (triangle, tile) pair to conservative intervals (u^, v^, t^, z^).
 
 Implements docs/pipeline.md §2.3. The culling algorithm (``tile_test.algorithm``)
-is a module of ``units.culling``: its tile kernel bounds or rejects each
-record with the shared bounds of ``units.tile_test_bounds`` (the moving box
-and edges of Munkberg11 §4, lens intervals after Laine11 and Wu13 §2-3, z^
-from Nilsson12 App. A) or its own, and may add fields to the records it
-passes on (two-stage lines, tuple masks). With ``algorithm = "bbox"`` no
-tile is rejected and t^ is the triangle's whole time span: the BBOX
-baseline of Wu13 and Munkberg11, against which the sample test efficiency
-of the tests is measured.
+is a module of ``units.culling`` that declares its events, record extensions
+and setup part; ``tile_test_kernel`` runs its branch per record with the
+shared bounds of ``units.tile_test_bounds`` (the moving box and edges of
+Munkberg11 §4, lens intervals after Laine11 and Wu13 §2-3, z^ from Nilsson12
+App. A) or the module's own (convex hull, dual-space and two-stage time
+bounds, tuple masks). With ``algorithm = "bbox"`` no tile is rejected and t^
+is the triangle's whole time span: the BBOX baseline of Wu13 and Munkberg11,
+against which the sample test efficiency of the tests is measured.
 
 The user clip planes (Nilsson12 §2) are the unit's ``clips`` attribute
 (t_lo, t_hi, u_lo, u_hi, v_lo, v_hi), read at each ``run``: a pass with

@@ -25,15 +25,14 @@ TIMING_DEPENDENT: tuple[str, ...] = ()
 
 
 @nb.njit(cache=True)
-def traverse_kernel(ids, table, tile_size, coarse_factor, coarse_test, width, height, row_lo, row_hi, out_tri, out_tx,
-                    out_ty, ops, events):
+def traverse_kernel(ids, bounds, t_span, p0, dp, l0, dl, tile_size, coarse_factor, coarse_test, width, height,
+                    row_lo, row_hi, out_tri, out_tx, out_ty, ops, events):
     """Emit (triangle, tile) records for ``ids`` within rows ``[row_lo, row_hi)``
-    (a screen region, on coarse-tile rows) from triangle setup's ``table``;
-    returns the number written.
+    (a screen region, on coarse-tile rows); returns the number written.
 
     Coarse tiles are tested against the moving 2DH box (Munkberg11 §4.1, eq. 1-2).
+    (The setup table's arrays, not the table: a namedtuple argument measured 3-7% slower.)
     """
-    bounds, t_span, p0, dp, l0, dl = table.bounds, table.t_span, table.p0, table.dp, table.l0, table.dl
     n = 0
     ctile = tile_size * coarse_factor
     for b in range(ids.shape[0]):
@@ -102,6 +101,7 @@ class TileTraverser:
         out = TILE_IDS.allocate(cap, fill=False)
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
-        n = traverse_kernel(ids, t, ts, self.config.coarse_factor, self.coarse_test, self.width, self.height, r0, r1,
-                            out["tri"], out["tx"], out["ty"], ops, events)
+        n = traverse_kernel(ids, t.bounds, t.t_span, t.p0, t.dp, t.l0, t.dl, ts, self.config.coarse_factor,
+                            self.coarse_test, self.width, self.height, r0, r1, out["tri"], out["tx"], out["ty"], ops,
+                            events)
         return {k: a[:n] for k, a in out.items()}, ops, events
