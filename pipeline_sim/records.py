@@ -16,11 +16,11 @@ every batch a unit produces against them (``RecordType.problems``).
   only: no unit writes one yet).
 
 A culling algorithm's own fields (the convex hull of a triangle, two-stage
-time lines, a tuple mask) are declared by its module as an extension
-(``RecordType.extend``); the culling registry (``units.culling``) lists them.
+time lines, a tuple mask) are declared by its module as records of their
+own (``TRIANGLE_EXT``, ``TILE_EXT``) beside the base ones, which
+``RecordType.extend`` joins; the culling registry (``units.culling``) lists them.
 Between units a batch stays a dict of arrays keyed by field name
-(``batch["tri"]``); a kernel takes a batch as one namedtuple
-(``RecordType.view``). This module imports only numpy (``tests/test_layering.py``).
+(``batch["tri"]``). This module imports only numpy (``tests/test_layering.py``).
 """
 
 from __future__ import annotations
@@ -59,9 +59,6 @@ class RecordType:
     def names(self) -> tuple[str, ...]:
         return tuple(f.name for f in self.fields)
 
-    def field(self, name: str) -> Field:
-        return next(f for f in self.fields if f.name == name)
-
     def extend(self, name: str, fields: tuple[Field, ...], module: str) -> "RecordType":
         """This record with ``fields`` appended (a culling algorithm's own)."""
         return RecordType(name, self.fields + tuple(fields), module)
@@ -79,10 +76,6 @@ class RecordType:
         """A namedtuple of arrays for ``n`` records (zeroed unless not ``fill``): what a kernel takes
         as one argument."""
         return self.tuple_class(**self.allocate(n, fill))
-
-    def view(self, batch: dict[str, np.ndarray]) -> tuple:
-        """The namedtuple of a batch's arrays, in declaration order (no copy)."""
-        return self.tuple_class(*(batch[k] for k in self.names))
 
     def problems(self, batch: dict[str, np.ndarray]) -> list[str]:
         """How a batch differs from the declaration: missing or extra names, wrong

@@ -35,7 +35,6 @@ from units.rounding import F32_REL
 # the events of every tile test, first in its event vector; an algorithm's own follow (units.culling)
 CORE_EVENTS = ("rejected_box", "rejected_edge", "rejected_lens", "accepted")
 EV_REJ_BOX, EV_REJ_EDGE, EV_REJ_LENS, EV_ACCEPT = range(len(CORE_EVENTS))
-N_CORE = len(CORE_EVENTS)
 
 # an algorithm without fields of its own extends the records by these
 NO_TRIANGLE_FIELDS = RecordType("NoTriangleFields", (), __name__)
