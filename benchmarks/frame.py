@@ -76,11 +76,10 @@ def estimate_bytes(draw, width: int, height: int, spp: int, tile_size: int, zcul
     """How the run's memory divides, from array sizes (bytes). Samples and
     multisample buffers exist for one screen region of ``region_rows`` rows at
     a time (the sample sets of up to ``sets_kept`` regions are cached)."""
-    from units.triangle_setup import TriangleTable
+    from pipeline_sim.records import TRIANGLE
 
     n = width * min(region_rows, height) * spp  # samples of one region
-    one = TriangleTable.allocate(1)
-    table_per_tri = sum(getattr(one, f).nbytes for f in one.__dataclass_fields__)
+    table_per_tri = sum(a.nbytes for a in TRIANGLE.table(1))
     draw_bytes = sum(getattr(draw, f).nbytes for f in ("q", "r", "lens_x", "lens_y", "pos", "nrm", "color",
                                                        "material", "object_id"))
     tiles = -(-width // tile_size) * -(-height // tile_size)

@@ -34,6 +34,7 @@ from pipeline_sim.sampling import make_samples
 from pipeline_sim.shaders import standard_params, standard_shader
 from pipeline_sim.simulation import SimOptions
 from pipeline_sim.targets import AppendBuffer, AppendResult, ShaderOutput, Target, check_targets
+from units import culling
 from units.rop import Rop
 from units.sample_tester import EV_2D, EV_PIXELS, TEST_OPS_MADD, TEST_OPS_MUL, SampleTester
 from units.shading_cache import Shading
@@ -174,18 +175,18 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     plan = plan_regions(draw.width, draw.height, spp, p.simulation.region_samples, step)
     samples = RegionSamples(plan, region_samples)
     first = samples.region(0)
-    algorithm = arch.tile_test.algorithm
-    if algorithm == "interleave_uvt" and first.tuples is None:
-        raise UserError(f"pass {p.name}: tile_test.algorithm = 'interleave_uvt' needs the 'interleave' sample "
+    algorithm = culling.algorithm(arch.tile_test.algorithm)
+    if algorithm.NEEDS_TUPLES and first.tuples is None:
+        raise UserError(f"pass {p.name}: tile_test.algorithm = '{algorithm.NAME}' needs the 'interleave' sample "
                         f"pattern, not '{pattern}'")
 
-    setup = TriangleSetup(arch.triangle_setup, draw, ts, state.backface_culling, hull=algorithm == "hull")
+    setup = TriangleSetup(arch.triangle_setup, draw, ts, state.backface_culling, culling=algorithm)
     # the hierarchical tests of Munkberg11 start at coarse tiles; the others cover
     # their bounding geometry flat, as Wu13 does
     traverser = TileTraverser(arch.tile_traverser, setup.table, ts, draw.width, draw.height,
-                              coarse_test=algorithm == "hierarchical")
+                              coarse_test=algorithm.COARSE_TEST)
     tile_test = TileTest(arch.tile_test, setup.table, ts, draw.width, draw.height, draw.depth_w,
-                         clips[0], tuples=first.tuples)
+                         clips[0], tuples=first.tuples, extension=setup.extension)
     spec = arch.pipeline.specialize
     zcull = ZCull(arch.zcull, state.depth_test, ts, draw.width, draw.height, p.clear_depth,
                   motion or not spec, lens or not spec)

@@ -1,5 +1,6 @@
 """Layering: every module imports on its own, in a fresh interpreter, in any order;
-and the units depend on the framework only through ``pipeline_sim.definitions``.
+and the units depend on the framework only through ``pipeline_sim.definitions`` and
+``pipeline_sim.records``.
 
 An import cycle shows up only when a module of the cycle is the first one
 imported, so each module is imported first, alone, in its own process.
@@ -9,6 +10,8 @@ import ast
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 from conftest import ROOT
 
@@ -41,6 +44,8 @@ def test_each_module_imports_first_and_alone():
 
 
 DEFINITIONS = "pipeline_sim.definitions"
+RECORDS = "pipeline_sim.records"
+SHARED = (DEFINITIONS, RECORDS)  # what units may import of the framework
 UNIT_FILES = sorted(p for p in (ROOT / "units").glob("*.py") if p.name != "__init__.py")
 
 
@@ -61,10 +66,10 @@ def imports_of(source: str, module: str) -> set[str]:
 
 
 def unit_may_import(name: str) -> bool:
-    """A unit imports the standard library, numpy, numba, other units and the definitions only."""
+    """A unit imports the standard library, numpy, numba, other units, the definitions and the records only."""
     top = name.split(".")[0]
-    return (top in sys.stdlib_module_names or top in ("numpy", "numba", "units") or name == DEFINITIONS
-            or name.startswith(DEFINITIONS + "."))
+    return (top in sys.stdlib_module_names or top in ("numpy", "numba", "units")
+            or any(name == m or name.startswith(m + ".") for m in SHARED))
 
 
 def test_imports_of_reads_every_form():
@@ -88,18 +93,19 @@ def test_units_import_only_the_definitions_of_the_framework():
     assert not {k: v for k, v in wrong.items() if v}, wrong
 
 
-def test_definitions_import_nothing_of_the_project():
-    """The framework imports its shared definitions, never the other way: they
+@pytest.mark.parametrize("module", SHARED)
+def test_definitions_import_nothing_of_the_project(module):
+    """The framework imports its shared definitions and records, never the other way: they
     import the standard library (and numpy) only, no unit and no framework module."""
-    path = ROOT / Path(*DEFINITIONS.split(".")).with_suffix(".py")
-    names = imports_of(path.read_text(), DEFINITIONS)
+    path = ROOT / Path(*module.split(".")).with_suffix(".py")
+    names = imports_of(path.read_text(), module)
     assert not [n for n in names if n.split(".")[0] not in sys.stdlib_module_names and n.split(".")[0] != "numpy"]
 
 
 def test_importing_the_units_loads_no_other_framework_module():
     """At run time too: the package itself is lazy, so importing every unit
-    loads ``pipeline_sim.definitions`` and nothing else of the framework,
-    nor SimPy or pandas."""
+    loads ``pipeline_sim.definitions`` and ``pipeline_sim.records`` and nothing
+    else of the framework, nor SimPy or pandas."""
     script = ("import importlib, sys\n"
               "for name in sys.argv[1:]:\n"
               "    importlib.import_module(name)\n"
@@ -107,4 +113,4 @@ def test_importing_the_units_loads_no_other_framework_module():
               "print(' '.join(sorted(m for m in sys.modules if m.split('.')[0] in watched)))\n")
     out = subprocess.run([sys.executable, "-c", script, *(f"units.{p.stem}" for p in UNIT_FILES)], cwd=ROOT,
                          capture_output=True, text=True, check=True).stdout.split()
-    assert out == ["pipeline_sim", DEFINITIONS]
+    assert out == ["pipeline_sim", *SHARED]

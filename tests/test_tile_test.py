@@ -11,8 +11,13 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
+from pipeline_sim.config import load_arch
+from pipeline_sim.draw import draw_from_clip
+from pipeline_sim.pass_state import ClipPlanes
 from triangles import PERSPECTIVE, moving_triangle, sample_inside_points, setup_and_tiles
-from units.triangle_setup import ST_DEGENERATE
+from units.tile_test import TileTest
+from units.tile_traverser import TileTraverser
+from units.triangle_setup import ST_DEGENERATE, TriangleSetup
 
 W, H = 48, 32
 
@@ -177,3 +182,30 @@ def relative_det_max(q, r, lx, ly, n=9):
                 if norms > 0:
                     best = max(best, abs(np.linalg.det(p)) / norms)
     return best
+
+
+def test_clip_planes_set_per_batch_bound_every_interval():
+    """``TileTest.clips`` is read at each run (each draw of a pass sets its own): a batch run after
+    setting it gives what a tile test configured with those clip planes gives, and no interval
+    reaches past them; the same batch with the configured planes again is unclipped."""
+    q = np.array([[[-0.9, -0.1, 0.0, 1.0], [-0.8, -0.1, 0.0, 1.0], [-0.85, 0.0, 0.0, 1.0]]])
+    r = q + np.array([1.7, 0.0, 0.0, 0.0])
+    lx = np.full((1, 3, 2), 0.02)
+    d = draw_from_clip(q, r, lx, lx, width=W, height=H)
+    clipped = ClipPlanes(t_hi=0.3, u_lo=-0.5).as_array()
+    arch = load_arch()
+    setup = TriangleSetup(arch.triangle_setup, d, 8)
+    alive, _, _ = setup.run(np.arange(1, dtype=np.int64))
+    tiles, _, _ = TileTraverser(arch.tile_traverser, setup.table, 8, W, H).run(alive)
+    per_batch = TileTest(arch.tile_test, setup.table, 8, W, H)
+    configured = TileTest(arch.tile_test, setup.table, 8, W, H, clips=clipped)
+    plain, _, _ = per_batch.run(tiles)
+    per_batch.clips = clipped
+    a, _, ev_a = per_batch.run(tiles)
+    b, _, ev_b = configured.run(tiles)
+    assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a) and np.array_equal(ev_a, ev_b)
+    assert len(a["tri"]) > 0 and a["t_hi"].max() <= 0.3 and a["u_lo"].min() >= -0.5
+    assert plain["t_hi"].max() > 0.3 and len(plain["tri"]) > len(a["tri"])
+    per_batch.clips = ClipPlanes().as_array()
+    again, _, _ = per_batch.run(tiles)
+    assert all(np.array_equal(again[k], plain[k]) for k in plain)

@@ -30,6 +30,7 @@ from pipeline_sim.config import load_arch
 from pipeline_sim.counters import N_OPS
 from pipeline_sim.draw import draw_from_clip
 from triangles import VIEW_RAY_Q, VIEW_RAY_R, finite, moving_triangle
+from units import culling
 from units.sample_tester import inside_test
 from units.tile_test_hull import hull_overlaps_tile, hull_setup
 from units.triangle_setup import FLAG_WPOS, TriangleSetup
@@ -552,10 +553,11 @@ def test_vertex_on_its_view_ray_keeps_every_covered_tile():
     hull test rejects must hold no covered point (brute force, exact)."""
     z = np.zeros((1, 3, 2))
     d = draw_from_clip(VIEW_RAY_Q, VIEW_RAY_R, z, z, width=16, height=16)
-    setup = TriangleSetup(load_arch().triangle_setup, d, 4, hull=True)
+    setup = TriangleSetup(load_arch().triangle_setup, d, 4, culling=culling.algorithm("hull"))
     alive, _, _ = setup.run(np.arange(1, dtype=np.int64))
     tb = setup.table
-    h = Hulls(tb.hull, tb.hull_n, tb.hull_off)
+    ext = setup.extension
+    h = Hulls(ext.hull, ext.hull_n, ext.hull_off)
     assert 0 in alive and tb.flags[0] & FLAG_WPOS and h.n[0] >= 3
     x, y = np.float32(3.5489749908447266), np.float32(5.0)
     assert exact_inside(tb.p0, tb.dp, 0, 0.0, x, y)

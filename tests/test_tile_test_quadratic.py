@@ -24,7 +24,7 @@ from pipeline_sim.counters import N_OPS
 from pipeline_sim.draw import draw_from_clip
 from triangles import finite, moving_triangle, sample_inside_points
 from units.sample_tester import inside_test
-from units.tile_test import _edge_time_interval
+from units.tile_test_bounds import edge_time_interval
 from units.tile_test_quadratic import _nonneg_hull, quadratic_time_interval
 from units.triangle_setup import FLAG_EDGE, TriangleSetup
 
@@ -352,7 +352,7 @@ def test_quadratic_is_within_linearized_on_real_triangles():
         for ty in range(by0 // 8, (by1 - 1) // 8 + 1):
             x0, x1, y0, y1 = tx * 8.0, tx * 8.0 + 8, ty * 8.0, ty * 8.0 + 8
             ops = np.zeros(N_OPS, np.int64)
-            la, lb = _edge_time_interval(tb.edge_h, tb.edge_gamma, tb.edge_g, tb.edge_fg, tb.edge_abs, True, 0, x0, x1, y0, y1,
+            la, lb = edge_time_interval(tb.edge_h, tb.edge_gamma, tb.edge_g, tb.edge_fg, tb.edge_abs, True, 0, x0, x1, y0, y1,
                                          lo, hi, ops)
             a, b, _ = run(f, g, h, (x0, x1, y0, y1), lo, hi)
             if la > lb:
@@ -412,7 +412,7 @@ def test_curved_edge_tighter_than_linearized():
     assert a <= e_in and b >= e_out and e_in - a < 1e-5 and b - e_out < 1e-5
     ops = np.zeros(N_OPS, np.int64)
     gamma = np.full((1, 3), np.inf)
-    la, lb = _edge_time_interval(h, gamma, g, f + g, np.abs(f) + np.abs(g) + np.abs(h), True, 0, *tile, 0.0, 1.0,
+    la, lb = edge_time_interval(h, gamma, g, f + g, np.abs(f) + np.abs(g) + np.abs(h), True, 0, *tile, 0.0, 1.0,
                                  ops)
     assert la <= a and lb >= b  # the linearized test is conservative too ...
     assert lb - b > 0.1  # ... but misses that the edge turns back

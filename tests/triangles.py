@@ -8,6 +8,7 @@ from hypothesis import strategies as st
 from pipeline_sim.config import load_arch
 from pipeline_sim.draw import draw_from_clip
 from units.sample_tester import inside_test
+from units import culling
 from units.tile_test import TileTest
 from units.tile_traverser import TileTraverser
 from units.triangle_setup import TriangleSetup
@@ -92,13 +93,14 @@ def setup_and_tiles(q, r, lx, ly, width=48, height=32, tile_size=8, coarse_facto
                                 f"tile_test.lens_bounds={'true' if lens_bounds else 'false'}",
                                 f"tile_test.gamma='{gamma}'", f"tile_test.algorithm='{algorithm}'",
                                 f"tile_test.edge_solver='{edge_solver}'"])
-    setup = TriangleSetup(arch.triangle_setup, d, tile_size, backface_culling, hull=algorithm == "hull")
+    alg = culling.algorithm(algorithm)
+    setup = TriangleSetup(arch.triangle_setup, d, tile_size, backface_culling, culling=alg)
     ids = np.arange(d.n, dtype=np.int64)
     alive, _, _ = setup.run(ids)
-    trav = TileTraverser(arch.tile_traverser, setup.table, tile_size, width, height,
-                         coarse_test=algorithm == "hierarchical")
+    trav = TileTraverser(arch.tile_traverser, setup.table, tile_size, width, height, coarse_test=alg.COARSE_TEST)
     tiles, _, _ = trav.run(alive)
-    tt = TileTest(arch.tile_test, setup.table, tile_size, width, height, depth_w, tuples=tuples)
+    tt = TileTest(arch.tile_test, setup.table, tile_size, width, height, depth_w, tuples=tuples,
+                  extension=setup.extension)
     kept, _, _ = tt.run(tiles)
     return setup, alive, kept
 

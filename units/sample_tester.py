@@ -26,6 +26,7 @@ import numba as nb
 import numpy as np
 
 from pipeline_sim.definitions import COMMON, N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+from pipeline_sim.records import SAMPLE
 
 EVENTS = ("samples_tested", "samples_covered", "samples_in_range", "pixels_visited",
           "tests_2d", "tests_3d_xyt", "tests_4d_xyuv", "tests_5d")
@@ -995,6 +996,9 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
 _NO_LINES = np.zeros((0, 8), np.float32)
 _NO_MASKS = np.zeros(0, np.uint64)
 _NO_TUPLES = np.zeros(0, np.int8)
+#: the per-sample filters the kernel applies, by the tile-record field a culling algorithm adds
+#: (``units.culling``): time lines t >= c + s u etc. (Wu13 §3.4) and a tuple mask (Fatahalian09)
+SAMPLE_FILTERS = ("lines", "mask")
 
 
 class SampleTester:
@@ -1075,11 +1079,7 @@ class SampleTester:
         ts = self.tile_size
         n = len(tiles["tri"])
         cap = n * ts * ts * s.spp
-        out = {
-            "tri": np.empty(cap, np.int32), "pix": np.empty(cap, np.int32), "sidx": np.empty(cap, np.int32),
-            "z": np.empty(cap, np.float32), "b0": np.empty(cap, np.float32), "b1": np.empty(cap, np.float32),
-            "b2": np.empty(cap, np.float32), "noread": np.empty(cap, np.bool_),
-        }
+        out = SAMPLE.allocate(cap, fill=False)
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
         m = sample_test_kernel(*self.kernel_args(tiles, out, ops, events))

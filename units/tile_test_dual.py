@@ -42,6 +42,17 @@ import numpy as np
 
 from pipeline_sim.definitions import OP_ADD, OP_CMP, OP_MADD, OP_MUL, OP_RCP
 from units.rounding import F32_REL
+from units.tile_test_bounds import NO_TILE_FIELDS, NO_TRIANGLE_FIELDS
+
+# the culling algorithm "dual_space" (units.culling): lens bounds, then time bounds over that lens range
+NAME = "dual_space"
+EVENTS = ("rejected_dual_time",)
+TRIANGLE_EXT = NO_TRIANGLE_FIELDS
+TILE_EXT = NO_TILE_FIELDS
+COARSE_TEST = False
+NEEDS_TUPLES = False
+SAMPLE_FILTER = None
+setup_extras = None
 
 T_PAD_ABS = 1e-6  # absolute time pad of the stage-2 lines
 T_PAD_REL = 1e-12  # relative pad: float64 rounding of the bounds themselves

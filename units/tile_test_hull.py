@@ -46,8 +46,25 @@ import numba as nb
 import numpy as np
 
 from pipeline_sim.definitions import OP_ADD, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+from pipeline_sim.records import Field, RecordType
+from units.tile_test_bounds import NO_TILE_FIELDS
+from units.triangle_setup import FLAG_LENS, FLAG_WPOS
 
 HULL_MAX = 6  # six points have at most six hull vertices
+
+# the culling algorithm "hull" (units.culling): the triangle table gains each triangle's hull
+NAME = "hull"
+EVENTS = ("rejected_hull",)
+TRIANGLE_EXT = RecordType("HullTable", (
+    Field("hull", np.float64, (HULL_MAX, 2), NAME, "screen convex hull of the moving vertices, counter-clockwise"),
+    Field("hull_n", np.int32, (), NAME, "its vertex count; 0 when not computed"),
+    Field("hull_off", np.float64, (HULL_MAX,), NAME, "support offset of each hull edge"),
+), __name__)
+HullTable = TRIANGLE_EXT.tuple_class
+TILE_EXT = NO_TILE_FIELDS
+COARSE_TEST = False
+NEEDS_TUPLES = False
+SAMPLE_FILTER = None
 # "no overlap" is reported only when the separation exceeds this fraction of
 # the magnitudes of the coordinates involved plus an absolute pixel margin:
 # float64 rounding of the projected vertices, of the hull construction and of
@@ -233,3 +250,17 @@ def hull_overlaps_tile(hull, hull_n, hull_off, tri, x0, x1, y0, y1, ops):
         if d > eps:
             return False
     return True
+
+
+@nb.njit(cache=True)
+def _hulls(ids, p0, dp, t_span, flags, hull, hull_n, hull_off, ops):
+    """Convex hulls of the six projected vertices of the motion-only triangles
+    in front of the camera (McGuire10, Wu13 §3.2)."""
+    for tri in ids:
+        if (flags[tri] & FLAG_WPOS) != 0 and (flags[tri] & FLAG_LENS) == 0:
+            hull_setup(p0, dp, t_span, tri, hull, hull_n, hull_off, ops)
+
+
+def setup_extras(ids: np.ndarray, tris, ext, ops: np.ndarray) -> None:
+    """Triangle setup's part for the hull test: the hulls of the triangles ``ids`` that survived setup."""
+    _hulls(ids, tris.p0, tris.dp, tris.t_span, tris.flags, ext.hull, ext.hull_n, ext.hull_off, ops)

@@ -16,7 +16,22 @@ import numba as nb
 import numpy as np
 
 from pipeline_sim.definitions import OP_CMP, OP_MADD, OP_MUL, OP_RCP
+from pipeline_sim.records import Field, RecordType
 from units.rounding import F32_REL
+from units.tile_test_bounds import NO_TRIANGLE_FIELDS
+
+# the culling algorithm "interleave_uvt" (units.culling): needs the sample set's tuples
+NAME = "interleave_uvt"
+EVENTS = ("rejected_tuples",)
+TRIANGLE_EXT = NO_TRIANGLE_FIELDS
+TILE_EXT = RecordType("TupleMask", (
+    Field("mask", np.uint64, (), NAME, "bit i: tuple i may cover a sample of the tile"),
+), __name__)
+TupleMask = TILE_EXT.tuple_class
+COARSE_TEST = False
+NEEDS_TUPLES = True
+SAMPLE_FILTER = "mask"
+setup_extras = None
 
 
 @nb.njit(cache=True)

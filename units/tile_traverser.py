@@ -14,7 +14,9 @@ import numba as nb
 import numpy as np
 
 from pipeline_sim.definitions import N_OPS
-from units.tile_test import MARGIN_PX, box_time_interval
+from pipeline_sim.records import TILE_IDS
+from units.rounding import MARGIN_PX
+from units.tile_test_bounds import box_time_interval
 
 EVENTS = ("coarse_tiles_tested", "coarse_tiles_rejected", "tiles_emitted")
 EV_COARSE, EV_COARSE_REJ, EV_EMIT = range(len(EVENTS))
@@ -29,6 +31,7 @@ def traverse_kernel(ids, bounds, t_span, p0, dp, l0, dl, tile_size, coarse_facto
     (a screen region, on coarse-tile rows); returns the number written.
 
     Coarse tiles are tested against the moving 2DH box (Munkberg11 §4.1, eq. 1-2).
+    (The setup table's arrays, not the table: a namedtuple argument measured 3-7% slower.)
     """
     n = 0
     ctile = tile_size * coarse_factor
@@ -84,7 +87,7 @@ class TileTraverser:
     def run(self, ids: np.ndarray, rows: tuple[int, int] | None = None) -> tuple[dict[str, np.ndarray], np.ndarray,
                                                                                  np.ndarray]:
         """Traverse the triangles ``ids`` over rows ``[r0, r1)`` (default: the
-        whole frame); return tile records (tri, tx, ty)."""
+        whole frame); return tile records (their fields of ``pipeline_sim.records.TILE``: tri, tx, ty)."""
         t = self.table
         ts = self.tile_size
         r0, r1 = rows if rows is not None else (0, self.height)
@@ -95,11 +98,10 @@ class TileTraverser:
         y1 = np.minimum(b[:, 3], r1)
         ny = np.where(y1 > y0, (y1 - 1) // ts - y0 // ts + 1, 0)
         cap = int(np.sum(((b[:, 1] - 1) // ts - b[:, 0] // ts + 1) * ny))
-        out_tri = np.empty(cap, np.int32)
-        out_tx = np.empty(cap, np.int32)
-        out_ty = np.empty(cap, np.int32)
+        out = TILE_IDS.allocate(cap, fill=False)
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
         n = traverse_kernel(ids, t.bounds, t.t_span, t.p0, t.dp, t.l0, t.dl, ts, self.config.coarse_factor,
-                            self.coarse_test, self.width, self.height, r0, r1, out_tri, out_tx, out_ty, ops, events)
-        return {"tri": out_tri[:n], "tx": out_tx[:n], "ty": out_ty[:n]}, ops, events
+                            self.coarse_test, self.width, self.height, r0, r1, out["tri"], out["tx"], out["ty"], ops,
+                            events)
+        return {k: a[:n] for k, a in out.items()}, ops, events

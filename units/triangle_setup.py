@@ -37,14 +37,14 @@ Implements docs/pipeline.md §2.1. For each triangle of a batch:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from types import ModuleType
 
 import numba as nb
 import numpy as np
 
 from pipeline_sim.definitions import N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
+from pipeline_sim.records import TRIANGLE
 from units.rounding import F32_REL
-from units.tile_test_hull import hull_setup
 
 EVENTS = (
     "culled_frustum",
@@ -64,64 +64,6 @@ W_EPS = 1e-9  # w below this counts as crossing the camera plane
 # facing (front or back for every (t, u, v)) is claimed only when every
 # Bernstein coefficient of D exceeds this fraction of |p0||p1||p2|
 FACING_REL = 1e-10
-
-
-@dataclass
-class TriangleTable:
-    """Per-triangle constants written by setup and read by the later units.
-
-    Pixel-space 2DH vertices: ``p0`` (N,3,4) holds (X, Y, Z, W) at t=0 and
-    ``dp`` the change to t=1; ``l0``/``dl`` (N,3,2) the lens shift (LX, LY)
-    at t=0 and its change; all of a triangle's homogeneously normalised (its
-    clip coordinates divided by a power of two, module doc). ``*32`` are
-    float32 copies for the sample tester.
-    """
-
-    p0: np.ndarray
-    dp: np.ndarray
-    l0: np.ndarray
-    dl: np.ndarray
-    p0_32: np.ndarray
-    dp_32: np.ndarray
-    l0_32: np.ndarray
-    dl_32: np.ndarray
-    t_span: np.ndarray  # (N,2) [ts, te]
-    bounds: np.ndarray  # (N,4) int32 px0, px1, py0, py1 (exclusive ends)
-    facing: np.ndarray  # (N,) int8: +1 always front, -1 always back, 0 mixed
-    flags: np.ndarray  # (N,) int8: bit0 lens live, bit1 w > 0 all shutter, bit2 edge test valid, bit3 moving
-    edge_f: np.ndarray  # (N,3,3) f of each edge (t^2 coefficient), facing-normalized
-    edge_h: np.ndarray  # (N,3,3) h of each edge, facing-normalized
-    edge_gamma: np.ndarray  # (N,3) upper slope bound Gamma per edge
-    edge_g: np.ndarray  # (N,3,3) facing-normalized g of each edge (for Gamma per tile)
-    edge_fg: np.ndarray  # (N,3,3) facing-normalized f + g of each edge
-    # (N,3,3) per component, the sum of the absolute products that make up f, g
-    # and h: it bounds how far the float32 rounding of the vertices can move
-    # the edge function, even where f, g or h itself has cancelled
-    edge_abs: np.ndarray
-    ref: np.ndarray  # (N,3,3) float32 reference-camera (t=0.5, lens centre) X, Y, W
-    edge_eps: np.ndarray  # (N,) float32 error bound of a float32 edge-function value
-    plane_n: np.ndarray  # (N,2,3) normals of the triangle's plane at t=0 and t=1 (X, Y, W space)
-    plane_d: np.ndarray  # (N,2,2,2) [normal, side (+ below / - above), (d0, v)] moving planes
-    hull: np.ndarray  # (N,6,2) screen convex hull of the moving vertices, counter-clockwise (hull algorithm)
-    hull_n: np.ndarray  # (N,) int32 its vertex count; 0 when not computed
-    hull_off: np.ndarray  # (N,6) support offset of each hull edge (units.tile_test_hull)
-
-    @classmethod
-    def allocate(cls, n: int) -> "TriangleTable":
-        f64, f32 = np.float64, np.float32
-        return cls(
-            p0=np.zeros((n, 3, 4), f64), dp=np.zeros((n, 3, 4), f64),
-            l0=np.zeros((n, 3, 2), f64), dl=np.zeros((n, 3, 2), f64),
-            p0_32=np.zeros((n, 3, 4), f32), dp_32=np.zeros((n, 3, 4), f32),
-            l0_32=np.zeros((n, 3, 2), f32), dl_32=np.zeros((n, 3, 2), f32),
-            t_span=np.zeros((n, 2), f64), bounds=np.zeros((n, 4), np.int32),
-            facing=np.zeros(n, np.int8), flags=np.zeros(n, np.int8),
-            edge_f=np.zeros((n, 3, 3), f64), edge_h=np.zeros((n, 3, 3), f64), edge_gamma=np.zeros((n, 3), f64),
-            edge_g=np.zeros((n, 3, 3), f64), edge_fg=np.zeros((n, 3, 3), f64), edge_abs=np.zeros((n, 3, 3), f64),
-            ref=np.zeros((n, 3, 3), f32), edge_eps=np.zeros(n, f32),
-            plane_n=np.zeros((n, 2, 3), f64), plane_d=np.zeros((n, 2, 2, 2), f64),
-            hull=np.zeros((n, 6, 2), f64), hull_n=np.zeros(n, np.int32), hull_off=np.zeros((n, 6), f64),
-        )
 
 
 FLAG_LENS, FLAG_WPOS, FLAG_EDGE, FLAG_MOVING, FLAG_PLANE = 1, 2, 4, 8, 16
@@ -168,14 +110,20 @@ def _det(x0, y0, w0, x1, y1, w1, x2, y2, w2):
 
 
 @nb.njit(cache=True)
-def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_culling,
-                 p0, dp, l0, dl, p0_32, dp_32, l0_32, dl_32, t_span, bounds, facing, flags,
-                 edge_f, edge_h, edge_gamma, edge_g, edge_fg, edge_abs, ref, edge_eps, plane_n, plane_d, depth_planes, status, ops, events):
+def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_culling, table, depth_planes, status,
+                 ops, events):
     """Triangle setup for the triangles ``ids`` (docs/pipeline.md §2.1; Munkberg11 §3-4, Gribel10 eq. 3-5).
 
-    Writes the per-triangle tables in place, ``status`` per batch item and
-    accumulates ``ops`` (arithmetic classes) and ``events``.
+    Writes the per-triangle ``table`` (``pipeline_sim.records.TRIANGLE``) in
+    place, ``status`` per batch item and accumulates ``ops`` (arithmetic
+    classes) and ``events``.
     """
+    p0, dp, l0, dl = table.p0, table.dp, table.l0, table.dl
+    p0_32, dp_32, l0_32, dl_32 = table.p0_32, table.dp_32, table.l0_32, table.dl_32
+    t_span, bounds, facing, flags = table.t_span, table.bounds, table.facing, table.flags
+    edge_f, edge_h, edge_gamma, edge_g = table.edge_f, table.edge_h, table.edge_gamma, table.edge_g
+    edge_fg, edge_abs, ref, edge_eps = table.edge_fg, table.edge_abs, table.ref, table.edge_eps
+    plane_n, plane_d = table.plane_n, table.plane_d
     hx = 0.5 * width
     hy = 0.5 * height
     px = np.empty((2, 3, 4))  # pixel-space (X, Y, Z, W) at t=0, t=1
@@ -532,42 +480,38 @@ def _cross3(ax, ay, aw, bx, by, bw, out):
 
 
 class TriangleSetup:
-    """Functional model of the triangle setup unit over a whole draw."""
+    """Functional model of the triangle setup unit over a whole draw.
+
+    ``table``: the per-triangle table (``pipeline_sim.records.TRIANGLE``);
+    ``extension``: the fields the culling algorithm ``culling`` (a module of
+    ``units.culling``) adds to it, filled by its ``setup_extras``; None when it adds none.
+    """
 
     name = "triangle_setup"
     events = EVENTS
     timing_dependent = TIMING_DEPENDENT
 
-    def __init__(self, config, draw, tile_size: int, backface_culling: bool = False, hull: bool = False):
+    def __init__(self, config, draw, tile_size: int, backface_culling: bool = False,
+                 culling: ModuleType | None = None):
         self.config = config
         self.backface_culling = backface_culling
         self.draw = draw
         self.tile_size = tile_size
-        self.hull = hull  # also set up the convex hull of the moving vertices (McGuire10)
-        self.table = TriangleTable.allocate(draw.n)
+        self.table = TRIANGLE.table(draw.n)
+        self.extras = culling.setup_extras if culling is not None else None
+        self.extension = culling.TRIANGLE_EXT.table(draw.n) if culling is not None and culling.TRIANGLE_EXT.names \
+            else None
 
     def run(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Set up ``ids``; return (surviving ids, ops vector, events vector)."""
-        d, t = self.draw, self.table
+        d = self.draw
         status = np.zeros(len(ids), np.int8)
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
         setup_kernel(ids, d.q, d.r, d.lens_x, d.lens_y, d.width, d.height, self.tile_size,
-                     self.backface_culling, t.p0, t.dp, t.l0, t.dl, t.p0_32, t.dp_32,
-                     t.l0_32, t.dl_32, t.t_span, t.bounds, t.facing, t.flags, t.edge_f, t.edge_h,
-                     t.edge_gamma, t.edge_g, t.edge_fg, t.edge_abs, t.ref, t.edge_eps, t.plane_n, t.plane_d, self.draw.depth_w is not None,
-                     status, ops, events)
+                     self.backface_culling, self.table, d.depth_w is not None, status, ops, events)
         self.last_status = status
         kept = ids[status == ST_OK]
-        if self.hull:
-            _hulls(kept, t.p0, t.dp, t.t_span, t.flags, t.hull, t.hull_n, t.hull_off, ops)
+        if self.extras is not None:
+            self.extras(kept, self.table, self.extension, ops)
         return kept, ops, events
-
-
-@nb.njit(cache=True)
-def _hulls(ids, p0, dp, t_span, flags, hull, hull_n, hull_off, ops):
-    """Convex hulls of the six projected vertices of the motion-only triangles
-    in front of the camera (McGuire10, Wu13 §3.2)."""
-    for tri in ids:
-        if (flags[tri] & FLAG_WPOS) != 0 and (flags[tri] & FLAG_LENS) == 0:
-            hull_setup(p0, dp, t_span, tri, hull, hull_n, hull_off, ops)
