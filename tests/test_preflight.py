@@ -124,7 +124,8 @@ from pipeline_sim.cli import _load_inputs, build_parser, main
 from pipeline_sim.preflight import estimate_memory
 argv = {argv!r}
 args = build_parser().parse_args(argv)
-scene, arch = _load_inputs(args)
+workload, arch = _load_inputs(args)
+scene = workload.scene
 img = scene.image
 estimate = estimate_memory(img.width, img.height, img.spp, scene.triangle_count, arch, scene.pass_state,
                            scene.simulation).total
