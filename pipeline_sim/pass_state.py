@@ -85,10 +85,20 @@ class PassState:
         "covered sample", reference="per_sample")
     # a shading-grid cell from 1/64 of a pixel to 1024 pixels: the grid's cell index stays an int64
     shading_rate: number(1 / 64, 1024.0) = setting(1.0, ACCURACY, "shading-grid cell size in pixels")
+    # the reference camera of the shading cache (stereo and multi-view: one chosen view keys the shading)
+    shading_u: Lens = setting(0.0, ACCURACY, "lens coordinate u of the reference camera whose view keys the "
+                              "shading cache and where a cached shader runs (a chosen eye of a stereo pair)")
+    shading_v: Lens = setting(0.0, ACCURACY, "lens coordinate v of that reference camera")
+    shading_t: Time = setting(0.5, ACCURACY, "shutter time t of that reference camera")
 
     @property
     def conservative(self) -> bool:
         return self.mode == "conservative"
+
+    @property
+    def shading_view(self) -> tuple[float, float, float]:
+        """(u, v, t) of the shading cache's reference camera."""
+        return (self.shading_u, self.shading_v, self.shading_t)
 
     def replace(self, **changes: Any) -> "PassState":
         return dataclasses.replace(self, **changes)

@@ -120,7 +120,7 @@ TRIANGLE = RecordType("TriangleTable", (
     Field("edge_g", f64, (3, 3), SETUP, "facing-normalized g of each edge"),
     Field("edge_fg", f64, (3, 3), SETUP, "facing-normalized f + g of each edge"),
     Field("edge_abs", f64, (3, 3), SETUP, "sum of the absolute products behind f, g, h: their float32 rounding"),
-    Field("ref", f32, (3, 3), SETUP, "reference-camera (t=0.5, lens centre) X, Y, W"),
+    Field("ref", f32, (3, 3), SETUP, "X, Y, W seen by the shading cache's reference camera (the pass's shading view)"),
     Field("edge_eps", f32, (), SETUP, "error bound of a float32 edge-function value"),
     Field("plane_n", f64, (2, 3), SETUP, "normals of the triangle's plane at t=0 and t=1 (X, Y, W)"),
     Field("plane_d", f64, (2, 2, 2), SETUP, "[normal, side, (d0, v)] moving planes"),

@@ -180,7 +180,8 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         raise UserError(f"pass {p.name}: tile_test.algorithm = '{algorithm.NAME}' needs the 'interleave' sample "
                         f"pattern, not '{pattern}'")
 
-    setup = TriangleSetup(arch.triangle_setup, draw, ts, state.backface_culling, culling=algorithm)
+    setup = TriangleSetup(arch.triangle_setup, draw, ts, state.backface_culling, culling=algorithm,
+                          shading_view=state.shading_view)
     # the hierarchical tests of Munkberg11 start at coarse tiles; the others cover
     # their bounding geometry flat, as Wu13 does
     traverser = TileTraverser(arch.tile_traverser, setup.table, ts, draw.width, draw.height,
@@ -194,7 +195,8 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         zcull.active = False
     tester = SampleTester(arch.sample_tester, setup.table, None, ts, state.backface_culling, spec)
     shading = Shading(arch.shading, state.shading_mode, state.shading_rate, draw, setup.table, None, p.shader,
-                      p.params, shader_textures, conservative, sum(o.channels for o in p.outputs), append)
+                      p.params, shader_textures, conservative, sum(o.channels for o in p.outputs), append,
+                      shading_view=state.shading_view)
     # the ROP reads a region's samples to refresh z-cull and for lens resolves
     rop_samples = zcull.active or any(t.resolve == "lens" for t in p.targets or ())
     rop = Rop(arch.rop, state, draw.width, draw.height, spp, p.clear_color, p.clear_depth, zcull if zcull.active else None,

@@ -23,8 +23,9 @@ from pipeline_sim.config import ShadingConfig, load_arch, pass_settings
 from pipeline_sim.counters import N_OPS
 from pipeline_sim.draw import draw_from_clip
 from pipeline_sim.render import RenderPass, run_pass
-from pipeline_sim.shaders import (IN_B, IN_G, IN_R, IN_T, IN_TRIANGLE, IN_U, IN_V, IN_X, IN_Y, N_INPUTS,
-                                  standard_shader)
+from pipeline_sim.pass_state import PassState
+from pipeline_sim.shaders import (IN_B, IN_G, IN_PX, IN_PY, IN_R, IN_T, IN_TRIANGLE, IN_U, IN_V, IN_X, IN_Y,
+                                  N_INPUTS, standard_shader)
 from units.shading_cache import (EVENTS, REPL_FIFO, REPL_LRU, Shading, cache_kernel, deliver_colors,
                                  first_sample_of_request, store_requests)
 
@@ -517,3 +518,39 @@ def test_deliver_colors_against_fancy_indexing(refs):
     has = sample_req >= 0
     expected[has] = shaded[sample_req[has]]
     np.testing.assert_array_equal(color, expected)
+
+
+@nb.njit
+def _surface_point_shader(inputs, params, textures, out, append):
+    """Writes the shading point's world position (linear over a triangle) and its shading time."""
+    for i in range(inputs.shape[1]):
+        out[i, 0] = inputs[IN_PX, i]
+        out[i, 1] = inputs[IN_PY, i]
+        out[i, 2] = inputs[IN_T, i]
+        out[i, 3] = 1.0
+
+
+@pytest.mark.parametrize("view", [(0.8, -0.4, 0.9), (-0.6, 0.3, 0.1)])
+def test_the_shading_view_keys_the_cache_and_places_the_shading(view):
+    """Stereo's chosen view (Nilsson12 §8): with one sample per pixel at the pixel centre and at the view's
+    (u, v, t), cache mode at one grid cell per pixel keys each covered sample to its own pixel as seen from
+    that view and shades it there: its image equals per-sample shading's (the other code path, each sample
+    at its own (t, u, v)); from the default view (lens centre, mid-shutter) the surface points differ."""
+    u0, v0, t0 = view
+    q = np.array([[[-0.7, -0.6, 0.2, 1.0], [0.5, -0.5, 0.3, 1.0], [-0.1, 0.7, 0.4, 1.0]]])
+    r = q + np.array([0.4, 0.1, 0.0, 0.0])  # moves over the shutter
+    lens = np.full((1, 3, 2), 0.15)  # and is defocused
+    draw = draw_from_clip(q, r, lens, -lens, width=48, height=40)
+    table = np.array([[0.5, 0.5, u0, v0, t0]])
+
+    def image(state):
+        return run_pass(RenderPass(draw=draw, arch=load_arch(), spp=1, sample_table=table, state=state,
+                                   shader=_surface_point_shader, clear_color=(0.0, 0.0, 0.0, 0.0))).image
+
+    per_sample = image(PassState(shading_mode="per_sample"))
+    cached = image(PassState(shading_mode="cache", shading_rate=1.0, shading_u=u0, shading_v=v0, shading_t=t0))
+    default_view = image(PassState(shading_mode="cache", shading_rate=1.0))
+    covered = per_sample[..., 3] > 0
+    assert covered.sum() > 200 and np.array_equal(covered, cached[..., 3] > 0)
+    np.testing.assert_allclose(cached[covered], per_sample[covered], atol=2e-5)
+    assert np.abs(default_view[covered][:, :3] - per_sample[covered][:, :3]).max() > 0.05

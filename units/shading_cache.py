@@ -4,7 +4,8 @@ Implements docs/pipeline.md §2.6 (Nilsson12 §2 and §8; Ragan-Kelley et al. 20
 
 Cache mode (decoupled sampling): a covered sample takes its barycentric
 position on the triangle, projects that surface point with the reference
-camera (lens centre, mid-shutter t=0.5) and quantizes it to the shading grid
+camera (the pass's shading view (u, v, t): by default the lens centre at
+mid-shutter t=0.5; a chosen eye for stereo) and quantizes it to the shading grid
 (``shading_rate`` pixels per cell). The key (triangle, cell) is looked up in
 a set-associative cache with LRU or FIFO replacement; on a miss the shader
 runs once at the cell centre (barycentrics from the reference edge
@@ -62,7 +63,7 @@ def cache_kernel(tri, b0, b1, b2, ref, rate, grid_w, grid_h, tags, stamps, entry
     n_in_front = 0
     for i in range(tri.shape[0]):
         tr = tri[i]
-        # surface point seen by the reference camera (t = 0.5, lens centre)
+        # surface point seen by the reference camera (the pass's shading view; default t = 0.5, lens centre)
         X = b0[i] * ref[tr, 0, 0] + b1[i] * ref[tr, 1, 0] + b2[i] * ref[tr, 2, 0]
         Y = b0[i] * ref[tr, 0, 1] + b1[i] * ref[tr, 1, 1] + b2[i] * ref[tr, 2, 1]
         W = b0[i] * ref[tr, 0, 2] + b1[i] * ref[tr, 1, 2] + b2[i] * ref[tr, 2, 2]
@@ -264,9 +265,11 @@ class Shading:
     timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, mode: str, shading_rate: float, draw, table, samples, shader, params: np.ndarray,
-                 textures, conservative: bool, channels: int = 4, append: tuple | None = None):
+                 textures, conservative: bool, channels: int = 4, append: tuple | None = None,
+                 shading_view: tuple[float, float, float] = (0.0, 0.0, 0.5)):
         self.config = config
         self.shading_rate = shading_rate
+        self.shading_view = shading_view  # (u, v, t) of the reference camera: the table's ``ref`` is seen from it
         self.draw = draw
         self.table = table
         self.samples = samples  # of the screen region the batches are in (``use_samples``)
@@ -319,10 +322,9 @@ class Shading:
             first = np.empty(nreq, np.int64)
             first_sample_of_request(sample_req, first)
             py, px = np.divmod(batch["pix"][first], s.width)
-            half = np.full(nreq, 0.5, np.float32)
-            zero = np.zeros(nreq, np.float32)
+            view_u, view_v, view_t = (np.full(nreq, c, np.float32) for c in self.shading_view)
             inputs = np.zeros((N_INPUTS, nreq), np.float32)
-            interpolate_kernel(req_tri[:nreq], req_l[:, :nreq], half, zero, zero,
+            interpolate_kernel(req_tri[:nreq], req_l[:, :nreq], view_t, view_u, view_v,
                                (px + 0.5).astype(np.float32), (py + 0.5).astype(np.float32),
                                batch["z"][first], self.draw.pos, self.draw.nrm, self.draw.color,
                                self.draw.material, self.draw.object_id, inputs, ops)

@@ -110,12 +110,13 @@ def _det(x0, y0, w0, x1, y1, w1, x2, y2, w2):
 
 
 @nb.njit(cache=True)
-def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_culling, table, depth_planes, status,
-                 ops, events):
+def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_culling, view, table, depth_planes,
+                 status, ops, events):
     """Triangle setup for the triangles ``ids`` (docs/pipeline.md §2.1; Munkberg11 §3-4, Gribel10 eq. 3-5).
 
-    Writes the per-triangle ``table`` (``pipeline_sim.records.TRIANGLE``) in
-    place, ``status`` per batch item and accumulates ``ops`` (arithmetic
+    ``view``: the (u, v, t) of the reference camera whose view keys the
+    shading cache (``ref``; Nilsson12 §2, §8). Writes the per-triangle
+    ``table`` (``pipeline_sim.records.TRIANGLE``) in place, ``status`` per batch item and accumulates ``ops`` (arithmetic
     classes) and ``events``.
     """
     p0, dp, l0, dl = table.p0, table.dp, table.l0, table.dl
@@ -187,9 +188,13 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
                 dl[tri, k, c] = lx[1, k, c] - lx[0, k, c]
                 l0_32[tri, k, c] = np.float32(lx[0, k, c])
                 dl_32[tri, k, c] = np.float32(lx[1, k, c] - lx[0, k, c])
+            # the vertex seen by the reference camera: at time view[2], lens position (view[0], view[1])
             for c in range(3):
                 cc = c if c < 2 else 3
-                ref[tri, k, c] = np.float32(0.5 * (px[0, k, cc] + px[1, k, cc]))
+                at = (1.0 - view[2]) * px[0, k, cc] + view[2] * px[1, k, cc]
+                if c < 2 and view[c] != 0.0:
+                    at += view[c] * ((1.0 - view[2]) * lx[0, k, c] + view[2] * lx[1, k, c])
+                ref[tri, k, c] = np.float32(at)
 
         # ---- float32 edge-function error bound for the sample tester --------
         # |e32 - e| <= 9 * 2^-24 * m^2 * (|x| + |y| + 1) with m the largest
@@ -492,9 +497,10 @@ class TriangleSetup:
     timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, draw, tile_size: int, backface_culling: bool = False,
-                 culling: ModuleType | None = None):
+                 culling: ModuleType | None = None, shading_view: tuple[float, float, float] = (0.0, 0.0, 0.5)):
         self.config = config
         self.backface_culling = backface_culling
+        self.shading_view = np.array(shading_view, np.float64)  # (u, v, t) of the shading cache's reference camera
         self.draw = draw
         self.tile_size = tile_size
         self.table = TRIANGLE.table(draw.n)
@@ -509,7 +515,7 @@ class TriangleSetup:
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
         setup_kernel(ids, d.q, d.r, d.lens_x, d.lens_y, d.width, d.height, self.tile_size,
-                     self.backface_culling, self.table, d.depth_w is not None, status, ops, events)
+                     self.backface_culling, self.shading_view, self.table, d.depth_w is not None, status, ops, events)
         self.last_status = status
         kept = ids[status == ST_OK]
         if self.extras is not None:
