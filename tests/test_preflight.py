@@ -200,7 +200,7 @@ def test_running_out_of_memory_anyway_is_one_line(scene, tmp_path, monkeypatch, 
     def exhausted(*args, **kwargs):
         raise MemoryError
 
-    monkeypatch.setattr(render, "render_scene", exhausted)
+    monkeypatch.setattr(render, "run_pass", exhausted)
     assert main(["run", str(scene), "--out", str(tmp_path / "out")]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "out of memory" in err
