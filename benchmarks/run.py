@@ -110,9 +110,14 @@ unless said otherwise:
    (benchmarks/tester_speed.py): issue 3's like-for-like throughput ratio;
    and against a brute-force tester, the micro-kernel on every sample of
    each record's tile (the tester's whole input), in tile samples a second.
+10. ("ab" section) What the pass layer costs (benchmarks/ab.py): the default
+   pass in the working tree against earlier revisions extracted with
+   ``git archive`` (before issue 12, before its pass layer), each in fresh
+   subprocesses in rotating order, in one run: wall and CPU time, their
+   ratios, and whether image and counters are the same. Writes ``ab.csv``.
 
 ``--only SECTION[,SECTION]`` runs some sections only (default, tester,
-scaling, compile, specialization, batch, frame, patterns; "default" is 0-2);
+scaling, compile, specialization, batch, frame, patterns, ab; "default" is 0-2);
 ``--frame-triangles N[,N]`` changes the frame section's sizes.
 """
 
@@ -151,6 +156,7 @@ FULL = {
     "frame": {"n": [250_000, 1_000_000], "width": 1920, "height": 1080, "spp": 16,
               "time_limit_s": 480, "mem_limit_gib": 12},
     "patterns": {"width": 64, "height": 64, "spp": [16, 64], "pixels": 256},
+    "ab_rounds": 5, "ab_runs": 5,
 }
 QUICK = {
     "pairs": 3, "instrumented": 1, "simpy_only": 3, "micro_repeats": 5, "scaling_repeats": 1,
@@ -163,9 +169,10 @@ QUICK = {
     # a tiny stand-in for the 1080p frame (same triangles, 1/16 of the pixels)
     "frame": {"n": [4_000], "width": 480, "height": 270, "spp": 16, "time_limit_s": 120, "mem_limit_gib": 12},
     "patterns": {"width": 32, "height": 32, "spp": [16], "pixels": 64},
+    "ab_rounds": 2, "ab_runs": 3,
 }
 # sections in the order they run; --only picks some
-SECTIONS = ("default", "tester", "scaling", "compile", "specialization", "batch", "frame", "patterns")
+SECTIONS = ("default", "tester", "scaling", "compile", "specialization", "batch", "frame", "patterns", "ab")
 
 
 def log(msg: str) -> None:
@@ -667,9 +674,9 @@ def report(results: dict) -> tuple[str, list[dict]]:
             add("tester", f"tester_over_brute_force@{name}", r["ratio_brute"], "ratio",
                 "tile samples per second: the tester vs the micro-kernel on every sample of each record's tile")
             add("tester", f"tester_rate@{name}", r["tester_rate"], "tests/s")
-    from benchmarks import batching, frame, patterns, specialization
+    from benchmarks import ab, batching, frame, patterns, specialization
     for key, mod in (("specialization", specialization), ("batch", batching), ("frame", frame),
-                     ("patterns", patterns)):
+                     ("patterns", patterns), ("ab", ab)):
         if key in results:
             out.extend(mod.report(results[key], table, add))
             out.append("")
@@ -749,6 +756,9 @@ def main(argv: list[str] | None = None) -> int:
     if "patterns" in sections:
         from benchmarks import patterns
         results["patterns"] = patterns.bench(cfg, log)
+    if "ab" in sections:
+        from benchmarks import ab
+        results["ab"] = ab.bench(cfg, log)
     results["machine"]["load_average_end"] = os.getloadavg()
     results["source_digest_end"] = source_digest()
     results["elapsed_s"] = time.perf_counter() - start
@@ -791,6 +801,9 @@ def main(argv: list[str] | None = None) -> int:
                   ["sweep", "triangles", "tiles", "samples", "frame_cycles", "cycles_vs_smallest", "cycles_vs_previous",
                    "cycles_vs_all_smallest", "cycles_deterministic", "wall_s", "cpu_s", "image_identical",
                    "depth_identical", "samples_tested", "zcull_records_out", "zcull_tiles_culled", "source_batches"]),
+        "ab": ("ab.csv", lambda r: r["rows"],
+               ["tree", "wall_median_s", "cpu_median_s", "current_over_this_wall", "current_over_this_cpu", "runs",
+                "frame_cycles", "same_image", "same_counters"]),
         "frame": ("frame.csv", lambda r: r["points"],
                   ["n", "width", "height", "spp", "status", "reason", "triangles", "build_s", "run_s", "run_cpu_s",
                    "frame_cycles", "samples_tested", "samples_covered", "rss_after_warm_up_mb", "build_peak_mb",
