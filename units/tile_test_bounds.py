@@ -114,15 +114,12 @@ def box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ta, tb, ops):
         ops[OP_CMP] += 2
         if d0 > 0.0 and d1 > 0.0:
             return 1.0, 0.0
-        if d0 > 0.0:
+        if d0 > 0.0 or d1 > 0.0:  # outside at one end only: the crossing time bounds that end
             t = ta + span * (d0 / (d0 - d1))
-            lo = max(lo, t)
-            ops[OP_RCP] += 1
-            ops[OP_MUL] += 1
-            ops[OP_MADD] += 1
-        elif d1 > 0.0:
-            t = ta + span * (d0 / (d0 - d1))
-            hi = min(hi, t)
+            if d0 > 0.0:
+                lo = max(lo, t)
+            else:
+                hi = min(hi, t)
             ops[OP_RCP] += 1
             ops[OP_MUL] += 1
             ops[OP_MADD] += 1
