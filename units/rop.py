@@ -27,8 +27,16 @@ import numpy as np
 from pipeline_sim.definitions import BLEND_MODES, DEPTH_FUNCS, N_OPS, OP_ADD, OP_CMP, ShaderOutput, default_targets
 from units.zcull import RF_CHECKS, RF_READ, RF_SCANS, RF_TILES
 
-EVENTS = ("depth_tests", "depth_passed", "depth_reads_skipped", "samples_written", "zcull_refresh_tiles",
-          "zcull_refresh_scans")
+# its events, in the order of the kernel's event vector, and what each counts
+EVENT_MEANINGS = {
+    "depth_tests": "sample depth tests",
+    "depth_passed": "samples that passed",
+    "depth_reads_skipped": "depth reads skipped on z-cull's word",
+    "samples_written": "samples written to the multisample buffers",
+    "zcull_refresh_tiles": "tiles whose z-cull boxes were checked after a batch",
+    "zcull_refresh_scans": "tiles rescanned to refresh their z-cull boxes",
+}
+EVENTS = tuple(EVENT_MEANINGS)
 EV_TESTS, EV_PASSED, EV_SKIPPED, EV_WRITTEN, EV_REFRESH_TILES, EV_REFRESH_SCANS = range(len(EVENTS))
 # counters timing can move (docs/pipeline.md §4): the samples z-cull passed and the reads it spared, and
 # the refreshes; which samples pass the depth test, and so the writes and blends, do not (z-cull culls
@@ -167,6 +175,7 @@ class Rop:
 
     name = "rop"
     events = EVENTS
+    event_meanings = EVENT_MEANINGS
     timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, state, width: int, height: int, spp: int, clear_color, clear_depth: float, zcull=None,
