@@ -5,7 +5,9 @@ Every unit declares the counters it owns (ATTILA style): the common ones
 Kernels fill an int64 vector laid out as the unit declares; ``CounterSet``
 accumulates those vectors and renders one tidy row per (unit, counter).
 Ratios such as STE are kept as numerator and denominator counters and
-computed when reported.
+computed when reported. Each counter's meaning is declared with its name
+(``COMMON_MEANINGS``, a unit's ``event_meanings``); the counter glossary
+(docs/counters.md) is generated from them.
 
 Each unit also declares which of its counters timing can move
 (``timing_dependent``, next to its event names): z-cull tests against the
@@ -18,12 +20,13 @@ checked by measurement in ``tests/test_timing_dependence.py``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 # the arithmetic classes and common counters are the units' (defined with what else they share)
-from pipeline_sim.definitions import COMMON, N_OPS
+from pipeline_sim.definitions import COMMON, COMMON_MEANINGS, N_OPS
 
 
 @dataclass
@@ -62,6 +65,16 @@ class CounterSet:
 
     def as_dict(self) -> dict[str, int]:
         return {n: int(v) for n, v in zip(self.names, self.values)}
+
+
+def counter_meanings(unit: Any) -> dict[str, str]:
+    """Each counter of ``unit`` (a unit class: ``name``, ``events``, ``event_meanings``), the common ones
+    first, with what it counts as declared; a counter declared without a meaning is an error naming it."""
+    meanings = {**COMMON_MEANINGS, **unit.event_meanings}
+    missing = [c for c in COMMON + tuple(unit.events) if not meanings.get(c, "").strip()]
+    if missing:
+        raise ValueError(f"{unit.name}: counter(s) without a declared meaning: {', '.join(missing)}")
+    return {c: meanings[c] for c in COMMON + tuple(unit.events)}
 
 
 def counters_frame(sets: list[CounterSet], timing: bool = True) -> pd.DataFrame:

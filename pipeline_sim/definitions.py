@@ -23,7 +23,15 @@ from dataclasses import dataclass
 OP_ADD, OP_MUL, OP_MADD, OP_RCP, OP_CMP = range(5)
 ARITHMETIC = ("add", "mul", "madd", "rcp", "compare")
 N_OPS = len(ARITHMETIC)
-COMMON = ("records_in", "records_out", *ARITHMETIC, "bytes_read", "bytes_written")
+#: the counters every unit has, before its own events, and what each counts
+COMMON_MEANINGS = {
+    "records_in": "records the unit received (triangles, tiles or samples, per its input)",
+    "records_out": "records it passed on",
+    **{op: f"`{op}` operations of its arithmetic" for op in ARITHMETIC},
+    "bytes_read": "bytes it read from memory",
+    "bytes_written": "bytes it wrote to memory",
+}
+COMMON = tuple(COMMON_MEANINGS)
 
 DEPTH_FUNCS = ("less", "lequal", "greater", "gequal", "equal", "always", "never")
 BLEND_MODES = ("replace", "add", "min", "max")

@@ -6,10 +6,10 @@ docs/sweep-format.md (every setting path a sweep may vary), the table of
 what each setting can change, and docs/counters.md (each unit's counters,
 what they count and whether timing can move them) are written here from the
 settings' declarations (types, ranges, choices, defaults, effects and
-one-line docs: ``pipeline_sim.settings``) and the units' counter
-declarations (``events``, ``timing_dependent``; the common counters of
-``pipeline_sim.definitions.COMMON``). Each generated block sits between
-``<!-- BEGIN generated: NAME -->`` and ``<!-- END generated: NAME -->``;
+one-line docs: ``pipeline_sim.settings``) and the counters' declarations
+(each unit's ``event_meanings`` and ``timing_dependent``, the common
+counters' ``pipeline_sim.definitions.COMMON_MEANINGS``). Each generated
+block sits between ``<!-- BEGIN generated: NAME -->`` and ``<!-- END generated: NAME -->``;
 ``make docs`` (``python -m pipeline_sim.docgen``) rewrites them and
 ``tests/test_docs.py`` fails when one is stale.
 """
@@ -24,7 +24,7 @@ from pathlib import Path
 
 from pipeline_sim import schema
 from pipeline_sim.config import PASS, SIMULATION, ArchConfig, declarations, setting_effects
-from pipeline_sim.definitions import ARITHMETIC, COMMON
+from pipeline_sim.counters import counter_meanings
 from pipeline_sim.pass_state import PassState
 from pipeline_sim.settings import EFFECTS
 from pipeline_sim.simulation import SimOptions
@@ -38,56 +38,6 @@ EFFECT_MEANINGS = {
     "cycles": "the cost model only; they can still move the counters declared timing-dependent, z-cull's and "
               "those after it ([pipeline.md §4](pipeline.md#4-what-is-counted)), unless z-cull is refreshed in "
               "submission order, as `compare` does",
-}
-
-#: What each counter counts: the common ones, then each unit's events (every declared name has a line;
-#: tests/test_docs.py checks it).
-COUNTER_MEANINGS = {
-    "records_in": "records the unit received (triangles, tiles or samples, per its input)",
-    "records_out": "records it passed on",
-    **{op: f"`{op}` operations of its arithmetic" for op in ARITHMETIC},
-    "bytes_read": "bytes it read from memory",
-    "bytes_written": "bytes it wrote to memory",
-    "culled_frustum": "triangles outside the view frustum at every time and lens position",
-    "culled_backface": "triangles facing away at every (t, u, v)",
-    "degenerate": "triangles of zero area throughout",
-    "crossing_w0": "triangles with a vertex path crossing w = 0",
-    "moving": "triangles that move during the shutter",
-    "defocused": "triangles with a lens shift",
-    "mixed_facing": "triangles whose facing changes over (t, u, v)",
-    "coarse_tiles_tested": "coarse tiles tested against a triangle's bounds",
-    "coarse_tiles_rejected": "coarse tiles rejected",
-    "tiles_emitted": "(triangle, tile) records emitted",
-    "rejected_box": "tiles rejected by the moving-box test",
-    "rejected_edge": "tiles rejected by the moving-edge test",
-    "rejected_lens": "tiles rejected by the lens bounds",
-    "accepted": "tiles passed on",
-    "rejected_hull": "tiles rejected by the convex hull",
-    "rejected_dual_time": "tiles rejected by dual-space time bounds",
-    "rejected_two_stage": "tiles rejected by two-stage time bounds",
-    "rejected_tuples": "tiles no (u, v, t) tuple of the set reaches",
-    "tiles_culled": "tiles z-cull rejected as hidden",
-    "tiles_no_depth_read": "tiles z-cull found in front of everything drawn (the ROP skips their depth reads)",
-    "box_lookups": "z-cull box lookups",
-    "samples_tested": "samples inside-tested",
-    "samples_covered": "samples found covered",
-    "samples_in_range": "samples within the tile's time and lens intervals",
-    "pixels_visited": "pixels whose sample range was looked up",
-    "tests_2d": "inside tests of static, focused triangles",
-    "tests_3d_xyt": "inside tests in x, y, t",
-    "tests_4d_xyuv": "inside tests in x, y, u, v",
-    "tests_5d": "inside tests in all five dimensions",
-    "lookups": "shading-cache lookups",
-    "hits": "lookups that found their entry",
-    "misses": "lookups that did not",
-    "evictions": "entries evicted",
-    "shader_executions": "shader executions",
-    "depth_tests": "sample depth tests",
-    "depth_passed": "samples that passed",
-    "depth_reads_skipped": "depth reads skipped on z-cull's word",
-    "samples_written": "samples written to the multisample buffers",
-    "zcull_refresh_tiles": "tiles whose z-cull boxes were checked after a batch",
-    "zcull_refresh_scans": "tiles rescanned to refresh their z-cull boxes",
 }
 
 
@@ -151,8 +101,9 @@ def sweep_paths() -> str:
     return "\n".join(rows)
 
 
-def unit_counters() -> list[tuple[str, tuple[str, ...], tuple[str, ...]]]:
-    """(unit, its events, its timing-dependent counters) in pipeline order, from the units' declarations."""
+def unit_counters() -> list[tuple[str, dict[str, str], tuple[str, ...]]]:
+    """(unit, each counter with what it counts, its timing-dependent counters) in pipeline order, from the
+    units' declarations."""
     from units.rop import Rop
     from units.sample_tester import SampleTester
     from units.shading_cache import Shading
@@ -161,16 +112,15 @@ def unit_counters() -> list[tuple[str, tuple[str, ...], tuple[str, ...]]]:
     from units.triangle_setup import TriangleSetup
     from units.zcull import ZCull
 
-    return [(u.name, tuple(u.events), tuple(u.timing_dependent))
+    return [(u.name, counter_meanings(u), tuple(u.timing_dependent))
             for u in (TriangleSetup, TileTraverser, TileTest, ZCull, SampleTester, Shading, Rop)]
 
 
 def counter_glossary() -> str:
     """One row per (unit, counter): what it counts and whether timing can move it."""
     rows = ["| unit | counter | counts | timing can move it |", "|---|---|---|---|"]
-    for unit, events, timed in unit_counters():
-        rows += [f"| `{unit}` | `{c}` | {COUNTER_MEANINGS[c]} | {'yes' if c in timed else 'no'} |"
-                 for c in (*COMMON, *events)]
+    for unit, meanings, timed in unit_counters():
+        rows += [f"| `{unit}` | `{c}` | {m} | {'yes' if c in timed else 'no'} |" for c, m in meanings.items()]
     return "\n".join(rows)
 
 

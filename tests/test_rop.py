@@ -249,3 +249,44 @@ def test_resolve_after_rendering_fragments():
     img = rop.resolve()
     np.testing.assert_array_equal(img[0, 0], [1.0, 2.0, 4.0, 1.0])
     np.testing.assert_array_equal(img[0, 1], [0.5, 1.0, 2.0, 0.5])
+
+
+@pytest.mark.parametrize("first_channels", [1, 2, 4, 5])
+def test_replaced_first_target_of_any_width_with_further_targets(first_channels):
+    """A first target replaced on every channel (the depth test's own loop writes it, of any channel count)
+    before an added and an always-written target: each buffer and the counts against a sequential Python
+    reference over the fragment list."""
+    from pipeline_sim.targets import ShaderOutput, Target
+
+    rng = np.random.default_rng(first_channels)
+    width, height, spp = 3, 2, 2
+    nslot = width * height * spp
+    outputs = (ShaderOutput("a", first_channels), ShaderOutput("b", 3))
+    targets = (Target("first", "a"), Target("sum", "b", "add"), Target("last", "b", depth="always"))
+    rop = Rop(RopConfig(), PassState(depth_test="less"), width, height, spp, (0, 0, 0, 0), 1.0, targets=targets,
+              outputs=outputs)
+    want = [np.zeros((nslot, o.channels), np.float32) for o in (outputs[0], outputs[1], outputs[1])]
+    depth = np.full(nslot, np.float32(1.0))
+    for batch in range(3):
+        n = 60
+        pix, sidx, z, _, noread = random_frags(rng, n, width * height, spp)
+        color = (rng.integers(-4, 9, (n, first_channels + 3)) / 4.0).astype(np.float32)
+        _, ops, ev, traffic = rop.run(dict(pix=pix, sidx=sidx, z=z, color=color, noread=noread))
+        passed = 0
+        for i in range(n):
+            k = pix[i] * spp + sidx[i]
+            if z[i] < depth[k]:
+                depth[k] = z[i]
+                passed += 1
+                want[0][k] = color[i, :first_channels]
+                want[1][k] = want[1][k] + color[i, first_channels:]
+            want[2][k] = color[i, first_channels:]
+        assert ev[EVENTS.index("depth_tests")] == ops[OP_CMP] == n
+        assert ev[EVENTS.index("samples_written")] == passed
+        assert ops[OP_ADD] == 3 * passed  # the added target's channels, where the test passed
+        # depth reads, and the added target's; depth writes and each target's (the last one's for every sample)
+        assert traffic[0] == 4 * int((~noread).sum()) + 12 * passed
+        assert traffic[1] == 4 * passed + 4 * first_channels * passed + 12 * passed + 12 * n
+    for buf, w in zip(rop.buffers, want):
+        np.testing.assert_array_equal(buf, w)
+    np.testing.assert_array_equal(rop.depth, depth)

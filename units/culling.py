@@ -4,8 +4,10 @@
 culling algorithm's module provides:
 
 * ``NAME``: its name in ``tile_test.algorithm``;
-* ``EVENTS``: its own tile-test events, after the core ones
-  (``units.tile_test_bounds.CORE_EVENTS``), placed by ``event_offset``;
+* ``EVENT_MEANINGS``: its own tile-test events, name -> what it counts (the
+  counter glossary's line), and ``EVENTS``, their names in that order; they
+  follow the core ones (``units.tile_test_bounds.CORE_EVENTS``), placed by
+  ``event_offset``;
 * ``TRIANGLE_EXT``: the fields it adds to the triangle setup table, a
   ``pipeline_sim.records.RecordType`` (empty: ``NO_TRIANGLE_FIELDS``), and
   ``setup_extras(ids, table, extension, ops)``, triangle setup's part that fills
@@ -33,16 +35,18 @@ from types import ModuleType
 
 from units import (tile_test_bbox, tile_test_dual, tile_test_hierarchical, tile_test_hull, tile_test_interleave,
                    tile_test_two_stage)
-from units.tile_test_bounds import CORE_EVENTS
+from units.tile_test_bounds import CORE_EVENT_MEANINGS, CORE_EVENTS
 
 ALGORITHMS: dict[str, ModuleType] = {m.NAME: m for m in (
     tile_test_hierarchical, tile_test_bbox, tile_test_hull, tile_test_dual, tile_test_two_stage,
     tile_test_interleave)}
-INTERFACE = ("NAME", "EVENTS", "TRIANGLE_EXT", "setup_extras", "TILE_EXT", "SAMPLE_FILTER", "COARSE_TEST",
+INTERFACE = ("NAME", "EVENTS", "EVENT_MEANINGS", "TRIANGLE_EXT", "setup_extras", "TILE_EXT", "SAMPLE_FILTER", "COARSE_TEST",
              "NEEDS_TUPLES")
 
 #: the tile test's events: the core ones, then each algorithm's own in the order of ``ALGORITHMS``
 EVENTS = CORE_EVENTS + tuple(e for m in ALGORITHMS.values() for e in m.EVENTS)
+#: what each of them counts, as the core and each algorithm's module declare it
+EVENT_MEANINGS = {**CORE_EVENT_MEANINGS, **{e: s for m in ALGORITHMS.values() for e, s in m.EVENT_MEANINGS.items()}}
 
 
 def algorithm(name: str) -> ModuleType:

@@ -27,8 +27,16 @@ import numpy as np
 from pipeline_sim.definitions import BLEND_MODES, DEPTH_FUNCS, N_OPS, OP_ADD, OP_CMP, ShaderOutput, default_targets
 from units.zcull import RF_CHECKS, RF_READ, RF_SCANS, RF_TILES
 
-EVENTS = ("depth_tests", "depth_passed", "depth_reads_skipped", "samples_written", "zcull_refresh_tiles",
-          "zcull_refresh_scans")
+# its events, in the order of the kernel's event vector, and what each counts
+EVENT_MEANINGS = {
+    "depth_tests": "sample depth tests",
+    "depth_passed": "samples that passed",
+    "depth_reads_skipped": "depth reads skipped on z-cull's word",
+    "samples_written": "samples written to the multisample buffers",
+    "zcull_refresh_tiles": "tiles whose z-cull boxes were checked after a batch",
+    "zcull_refresh_scans": "tiles rescanned to refresh their z-cull boxes",
+}
+EVENTS = tuple(EVENT_MEANINGS)
 EV_TESTS, EV_PASSED, EV_SKIPPED, EV_WRITTEN, EV_REFRESH_TILES, EV_REFRESH_SCANS = range(len(EVENTS))
 # counters timing can move (docs/pipeline.md §4): the samples z-cull passed and the reads it spared, and
 # the refreshes; which samples pass the depth test, and so the writes and blends, do not (z-cull culls
@@ -37,7 +45,26 @@ TIMING_DEPENDENT = ("records_in", "compare", "bytes_read", "depth_tests", "depth
                     "zcull_refresh_tiles", "zcull_refresh_scans")
 
 DEPTH_BYTES = 4
+CHANNEL_BYTES = 4  # a float32 channel of a render target
 F32_MAX = np.float32(np.finfo(np.float32).max)
+_NO_TRIANGLES = np.zeros(0, np.int32)
+_NOT_KEPT = np.zeros(0, np.bool_)
+
+
+@nb.njit(cache=True, inline="always")
+def depth_passes(func, d, old):
+    """The depth test ``func`` (a code of ``DEPTH_FUNCS``) of a sample's depth ``d`` against ``old``."""
+    if func == 0:
+        return d < old
+    if func == 1:
+        return d <= old
+    if func == 2:
+        return d > old
+    if func == 3:
+        return d >= old
+    if func == 4:
+        return d == old
+    return func == 5
 
 
 @nb.njit(cache=True, inline="always")
@@ -58,52 +85,43 @@ def blend_sample(buf, k, color, i, c0, modes):
 
 
 @nb.njit(cache=True)
-def rop_kernel(pix, sidx, z, tri, color, noread, spp, pix0, func, depth_write, depth_buf, tri_draw, buf, c0, modes,
-               every, draw_ok, passed, prior, query, ops, events, traffic):
-    """Depth test each sample in order and blend it into the pass's first render target ``buf``
-    (docs/pipeline.md §2.7); the buffers start at pixel ``pix0``. Returns the target's writes.
-
-    ``passed[i]``: whether record ``i`` passed (for the other targets, ``blend_kernel``); ``query``
-    counts per draw the samples passing (Nilsson12 §3); ``prior[i]`` gets the depth record ``i``
-    replaced, NaN where it wrote no depth."""
+def rop_kernel(pix, sidx, z, tri, color, noread, spp, pix0, func, depth_write, depth_buf, tri_draw, by_draw, query,
+               passed, prior, buf, c0, copy, ops, events, traffic):
+    """Depth test each sample in order (docs/pipeline.md §2.7); the buffers start at pixel ``pix0``.
+    ``passed[i]`` (unless empty) gets whether record ``i`` passed, for ``blend_kernel`` to write the
+    targets; ``prior[i]`` the depth it replaced, NaN where it wrote no depth. ``query`` counts per draw the
+    samples passing (Nilsson12 §3); ``by_draw``: the samples' draws are those of their triangles
+    (``tri_draw[tri]``), else all draw 0. ``copy``: the first target ``buf`` is the common one (replaced
+    on every channel where the test passes, for every draw), written here from channel ``c0`` of
+    ``color`` in the same loop (the default pass's case, chosen once per pass)."""
     skipped = 0
     n_passed = 0
-    writes = 0
     per_draw = query.shape[0] > 1  # one draw: its query is the count of samples passed
-    some_draws = not np.all(draw_ok)
+    keep = passed.shape[0] > 0
+    rgba = buf.shape[1] == 4
     for i in range(pix.shape[0]):
         k = (pix[i] - pix0) * spp + sidx[i]
         d = z[i]
         skipped += noread[i]
         old = depth_buf[k]
-        if func == 0:
-            ok = d < old
-        elif func == 1:
-            ok = d <= old
-        elif func == 2:
-            ok = d > old
-        elif func == 3:
-            ok = d >= old
-        elif func == 4:
-            ok = d == old
-        elif func == 5:
-            ok = True
-        else:
-            ok = False
-        passed[i] = ok
+        ok = depth_passes(func, d, old)
+        if keep:
+            passed[i] = ok
         prior[i] = np.nan
-        dr = tri_draw[tri[i]]
         if ok:
             n_passed += 1
             if per_draw:
-                query[dr] += 1
+                query[tri_draw[tri[i]] if by_draw else 0] += 1
             if depth_write:
                 prior[i] = old
                 depth_buf[k] = d
-        # written where the depth test passed (or always), for the draws the target takes
-        if (ok or every) and not (some_draws and not draw_ok[dr]):
-            writes += 1
-            blend_sample(buf, k, color, i, c0, modes)
+            if copy:  # the first target replaced on every channel: the sample's values copied
+                if rgba:  # of a fixed length, which the compiler unrolls
+                    for c in range(4):
+                        buf[k, c] = color[i, c0 + c]
+                else:
+                    for c in range(buf.shape[1]):
+                        buf[k, c] = color[i, c0 + c]
     if not per_draw:
         query[0] += n_passed
     n = pix.shape[0]
@@ -114,21 +132,27 @@ def rop_kernel(pix, sidx, z, tri, color, noread, spp, pix0, func, depth_write, d
     ops[OP_CMP] += n
     traffic[0] += DEPTH_BYTES * (n - skipped)
     traffic[1] += DEPTH_BYTES * n_passed if depth_write else 0
-    return writes
+    if copy:
+        traffic[1] += CHANNEL_BYTES * buf.shape[1] * n_passed
 
 
 @nb.njit(cache=True)
-def blend_kernel(pix, sidx, tri, color, passed, spp, pix0, tri_draw, buf, c0, modes, every, draw_ok):
-    """Blend each sample, in order, into a further render target (docs/pipeline.md §2.7), as
-    ``rop_kernel`` does into the first, from the samples' depth-test results ``passed``. Returns the
-    target's writes."""
+def blend_kernel(pix, sidx, tri, color, passed, spp, pix0, tri_draw, by_draw, buf, c0, modes, blended, every,
+                 some_draws, draw_ok, ops, traffic):
+    """Blend each sample, in order, into a render target (docs/pipeline.md §2.7; the target as
+    ``Rop.target_args`` gives it) from the samples' depth-test results ``passed``: where it passed (or
+    ``every``), for the draws the target takes. A write moves the target's channels; a blend other than
+    replace (on ``blended`` channels) reads them first and counts one addition per such channel (min and
+    max too)."""
     writes = 0
-    some_draws = not np.all(draw_ok)
     for i in range(pix.shape[0]):
-        if (passed[i] or every) and not (some_draws and not draw_ok[tri_draw[tri[i]]]):
+        if (passed[i] or every) and not (some_draws and not draw_ok[tri_draw[tri[i]] if by_draw else 0]):
             writes += 1
             blend_sample(buf, (pix[i] - pix0) * spp + sidx[i], color, i, c0, modes)
-    return writes
+    nbytes = CHANNEL_BYTES * buf.shape[1] * writes
+    ops[OP_ADD] += blended * writes
+    traffic[0] += nbytes if blended else 0
+    traffic[1] += nbytes
 
 
 @nb.njit(cache=True)
@@ -167,6 +191,7 @@ class Rop:
 
     name = "rop"
     events = EVENTS
+    event_meanings = EVENT_MEANINGS
     timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, state, width: int, height: int, spp: int, clear_color, clear_depth: float, zcull=None,
@@ -191,15 +216,22 @@ class Rop:
         for j, t in enumerate(self.targets):
             modes = t.blend if isinstance(t.blend, tuple) else (t.blend,) * self.channels[j]
             self.blend[j, :self.channels[j]] = [BLEND_MODES.index(state.blend if m is None else m) for m in modes]
-        self.always = np.array([t.depth == "always" for t in self.targets])
         self.draw_ok = np.array([[t.draws is None or d in t.draws for d in range(n_draws)] for t in self.targets])
-        self.n_blend = [int(np.count_nonzero(self.blend[j, :c])) for j, c in enumerate(self.channels)]
-        self.write_bytes = [4 * c for c in self.channels]
-        self.read_bytes = [b if a else 0 for a, b in zip(self.n_blend, self.write_bytes)]
+        # per target, what ``blend_kernel`` takes of it, chosen once: its first channel among the shader's
+        # outputs, its blend modes, how many channels blend other than by replace, whether it is written
+        # regardless of the depth test, whether it takes only some draws and which
+        self.target_args = tuple((int(self.col0[j]), self.blend[j], int(np.count_nonzero(self.blend[j, :c])),
+                                  t.depth == "always", not self.draw_ok[j].all(), self.draw_ok[j])
+                                 for j, (t, c) in enumerate(zip(self.targets, self.channels)))
+        # the common first target (replaced on every channel where the depth test passes, for every draw):
+        # the depth test's kernel writes it in its own loop
+        _, _, blended, every, some_draws, _ = self.target_args[0]
+        self.copy_first = int(blended == 0 and not every and not some_draws)
         self.clears = [np.zeros(c, np.float32) if t.clear is None else np.asarray(t.clear, np.float32)
                        for t, c in zip(self.targets, self.channels)]
-        self.draws_given = tri_draw is not None
-        self.tri_draw = np.zeros(1, np.int32) if tri_draw is None else tri_draw
+        # without a triangle -> draw table or with one draw, every sample is of draw 0
+        self.tri_draw = _NO_TRIANGLES if tri_draw is None else tri_draw
+        self.by_draw = tri_draw is not None and n_draws > 1
         self.queries = np.zeros(n_draws, np.int64)
         rows = (0, height) if rows is None else tuple(rows)
         self.one_region = rows == (0, height)
@@ -281,26 +313,16 @@ class Rop:
         traffic = np.zeros(2, np.int64)
         n = len(batch["pix"])
         prior = np.empty(n, np.float32)
-        passed = np.empty(n, np.bool_)
-        pix, sidx = batch["pix"], batch["sidx"]
-        if "tri" in batch:
-            tri = batch["tri"]
-            if not self.draws_given and n and tri.max() >= len(self.tri_draw):  # every triangle is draw 0
-                self.tri_draw = np.zeros(int(tri.max()) + 1, np.int32)
-        else:  # records without triangles: all of draw 0
-            tri = np.zeros(n, np.int32)
-        writes = [rop_kernel(pix, sidx, batch["z"], tri, batch["color"], batch["noread"], self.spp, self.pix0,
-                             self.func, self.depth_write, self.depth, self.tri_draw, self.buffers[0], self.col0[0],
-                             self.blend[0], self.always[0], self.draw_ok[0], passed, prior, self.queries, ops,
-                             events, traffic)]
-        writes += [blend_kernel(pix, sidx, tri, batch["color"], passed, self.spp, self.pix0, self.tri_draw,
-                                self.buffers[j], self.col0[j], self.blend[j], self.always[j], self.draw_ok[j])
-                   for j in range(1, len(self.buffers))]
-        # a write moves the target's channels (4 bytes each); a blend other than replace reads them first
-        # and counts one addition per such channel (min and max too)
-        ops[OP_ADD] += sum(a * w for a, w in zip(self.n_blend, writes))
-        traffic[0] += sum(b * w for b, w in zip(self.read_bytes, writes))
-        traffic[1] += sum(b * w for b, w in zip(self.write_bytes, writes))
+        first = self.copy_first  # the targets from ``first`` on are blended after the depth test
+        passed = np.empty(n, np.bool_) if len(self.buffers) > first else _NOT_KEPT
+        by_draw = self.by_draw and "tri" in batch  # records without triangles: all of draw 0
+        pix, sidx, tri = batch["pix"], batch["sidx"], batch["tri"] if by_draw else _NO_TRIANGLES
+        rop_kernel(pix, sidx, batch["z"], tri, batch["color"], batch["noread"], self.spp, self.pix0, self.func,
+                   self.depth_write, self.depth, self.tri_draw, by_draw, self.queries, passed, prior, self.buffers[0],
+                   self.target_args[0][0], first == 1, ops, events, traffic)
+        for buf, args in zip(self.buffers[first:], self.target_args[first:]):
+            blend_kernel(pix, sidx, tri, batch["color"], passed, self.spp, self.pix0, self.tri_draw, by_draw, buf,
+                         *args, ops, traffic)
         request = (batch["pix"], batch["sidx"], prior) if self.zcull is not None else None
         return request, ops, events, traffic
 

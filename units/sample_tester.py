@@ -28,8 +28,18 @@ import numpy as np
 from pipeline_sim.definitions import COMMON, N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
 from pipeline_sim.records import SAMPLE
 
-EVENTS = ("samples_tested", "samples_covered", "samples_in_range", "pixels_visited",
-          "tests_2d", "tests_3d_xyt", "tests_4d_xyuv", "tests_5d")
+# its events, in the order of the kernel's event vector, and what each counts
+EVENT_MEANINGS = {
+    "samples_tested": "samples inside-tested",
+    "samples_covered": "samples found covered",
+    "samples_in_range": "samples within the tile's time and lens intervals",
+    "pixels_visited": "pixels whose sample range was looked up",
+    "tests_2d": "inside tests of static, focused triangles",
+    "tests_3d_xyt": "inside tests in x, y, t",
+    "tests_4d_xyuv": "inside tests in x, y, u, v",
+    "tests_5d": "inside tests in all five dimensions",
+}
+EVENTS = tuple(EVENT_MEANINGS)
 EV_TESTED, EV_COVERED, EV_INRANGE, EV_PIXELS, EV_2D, EV_3D, EV_4D, EV_5D = range(len(EVENTS))
 # counters timing can move (docs/pipeline.md §4): all, since its input is what z-cull passes, and z-cull
 # tests against the depth the ROP has refreshed by that simulated time
@@ -1011,6 +1021,7 @@ class SampleTester:
 
     name = "sample_tester"
     events = EVENTS
+    event_meanings = EVENT_MEANINGS
     timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, table, samples, tile_size: int, backface_culling: bool, specialize: bool = True):

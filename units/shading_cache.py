@@ -29,7 +29,15 @@ from pipeline_sim.definitions import (COMMON, IN_B, IN_DEPTH, IN_MATERIAL, IN_NX
                                       IN_V, IN_V_HI, IN_V_LO, IN_X, IN_Y, IN_Z_HI, IN_Z_LO, N_INPUTS, N_OPS, OP_CMP,
                                       OP_MADD, OP_MUL, OP_RCP)
 
-EVENTS = ("lookups", "hits", "misses", "evictions", "shader_executions")
+# its events, in the order of the kernel's event vector, and what each counts
+EVENT_MEANINGS = {
+    "lookups": "shading-cache lookups",
+    "hits": "lookups that found their entry",
+    "misses": "lookups that did not",
+    "evictions": "entries evicted",
+    "shader_executions": "shader executions",
+}
+EVENTS = tuple(EVENT_MEANINGS)
 EV_LOOKUP, EV_HIT, EV_MISS, EV_EVICT, EV_EXEC = range(len(EVENTS))
 # counters timing can move (docs/pipeline.md §4): all, since its samples come through z-cull, which tests
 # against the depth the ROP has refreshed by that simulated time
@@ -262,6 +270,7 @@ class Shading:
 
     name = "shading"
     events = EVENTS
+    event_meanings = EVENT_MEANINGS
     timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, mode: str, shading_rate: float, draw, table, samples, shader, params: np.ndarray,

@@ -35,6 +35,7 @@ from units.tile_test_two_stage import LINE_F32_REL
 from units.triangle_setup import FLAG_EDGE, FLAG_LENS, FLAG_PLANE, FLAG_WPOS
 
 EVENTS = culling.EVENTS
+EVENT_MEANINGS = culling.EVENT_MEANINGS
 # the kernel's code of each algorithm: its place in the registry
 ALGORITHM_CODES = {name: code for code, name in enumerate(culling.ALGORITHMS)}
 ALG_HIERARCHICAL, ALG_BBOX, ALG_HULL, ALG_DUAL, ALG_TWO_STAGE, ALG_INTERLEAVE = (ALGORITHM_CODES[name] for name in (
@@ -205,6 +206,7 @@ class TileTest:
 
     name = "tile_test"
     events = EVENTS
+    event_meanings = EVENT_MEANINGS
     timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, table, tile_size: int, width: int, height: int,

@@ -13,7 +13,8 @@ from __future__ import annotations
 from units.tile_test_bounds import NO_TILE_FIELDS, NO_TRIANGLE_FIELDS
 
 NAME = "bbox"
-EVENTS: tuple[str, ...] = ()
+EVENT_MEANINGS: dict[str, str] = {}
+EVENTS = tuple(EVENT_MEANINGS)
 TRIANGLE_EXT = NO_TRIANGLE_FIELDS
 TILE_EXT = NO_TILE_FIELDS
 COARSE_TEST = False  # the bounding box flat, as Wu13 covers it

@@ -33,7 +33,13 @@ from pipeline_sim.records import RecordType
 from units.rounding import F32_REL
 
 # the events of every tile test, first in its event vector; an algorithm's own follow (units.culling)
-CORE_EVENTS = ("rejected_box", "rejected_edge", "rejected_lens", "accepted")
+CORE_EVENT_MEANINGS = {
+    "rejected_box": "tiles rejected by the moving-box test",
+    "rejected_edge": "tiles rejected by the moving-edge test",
+    "rejected_lens": "tiles rejected by the lens bounds",
+    "accepted": "tiles passed on",
+}
+CORE_EVENTS = tuple(CORE_EVENT_MEANINGS)
 EV_REJ_BOX, EV_REJ_EDGE, EV_REJ_LENS, EV_ACCEPT = range(len(CORE_EVENTS))
 
 # an algorithm without fields of its own extends the records by these

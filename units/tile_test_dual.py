@@ -46,7 +46,8 @@ from units.tile_test_bounds import NO_TILE_FIELDS, NO_TRIANGLE_FIELDS
 
 # the culling algorithm "dual_space" (units.culling): lens bounds, then time bounds over that lens range
 NAME = "dual_space"
-EVENTS = ("rejected_dual_time",)
+EVENT_MEANINGS = {"rejected_dual_time": "tiles rejected by dual-space time bounds"}
+EVENTS = tuple(EVENT_MEANINGS)
 TRIANGLE_EXT = NO_TRIANGLE_FIELDS
 TILE_EXT = NO_TILE_FIELDS
 COARSE_TEST = False

@@ -16,7 +16,8 @@ from __future__ import annotations
 from units.tile_test_bounds import NO_TILE_FIELDS, NO_TRIANGLE_FIELDS
 
 NAME = "hierarchical"
-EVENTS: tuple[str, ...] = ()  # its rejections are the core box, edge and lens ones
+EVENT_MEANINGS: dict[str, str] = {}  # its rejections are the core box, edge and lens ones
+EVENTS = tuple(EVENT_MEANINGS)
 TRIANGLE_EXT = NO_TRIANGLE_FIELDS
 TILE_EXT = NO_TILE_FIELDS
 COARSE_TEST = True  # the traverser tests coarse tiles with the moving box

@@ -54,7 +54,8 @@ HULL_MAX = 6  # six points have at most six hull vertices
 
 # the culling algorithm "hull" (units.culling): the triangle table gains each triangle's hull
 NAME = "hull"
-EVENTS = ("rejected_hull",)
+EVENT_MEANINGS = {"rejected_hull": "tiles rejected by the convex hull"}
+EVENTS = tuple(EVENT_MEANINGS)
 TRIANGLE_EXT = RecordType("HullTable", (
     Field("hull", np.float64, (HULL_MAX, 2), NAME, "screen convex hull of the moving vertices, counter-clockwise"),
     Field("hull_n", np.int32, (), NAME, "its vertex count; 0 when not computed"),

@@ -22,7 +22,8 @@ from units.tile_test_bounds import NO_TRIANGLE_FIELDS
 
 # the culling algorithm "interleave_uvt" (units.culling): needs the sample set's tuples
 NAME = "interleave_uvt"
-EVENTS = ("rejected_tuples",)
+EVENT_MEANINGS = {"rejected_tuples": "tiles no (u, v, t) tuple of the set reaches"}
+EVENTS = tuple(EVENT_MEANINGS)
 TRIANGLE_EXT = NO_TRIANGLE_FIELDS
 TILE_EXT = RecordType("TupleMask", (
     Field("mask", np.uint64, (), NAME, "bit i: tuple i may cover a sample of the tile"),

@@ -18,7 +18,8 @@ from pipeline_sim.records import Field, RecordType
 from units.tile_test_bounds import NO_TRIANGLE_FIELDS
 
 NAME = "two_stage"
-EVENTS = ("rejected_two_stage",)
+EVENT_MEANINGS = {"rejected_two_stage": "tiles rejected by two-stage time bounds"}
+EVENTS = tuple(EVENT_MEANINGS)
 TRIANGLE_EXT = NO_TRIANGLE_FIELDS
 TILE_EXT = RecordType("TwoStageLines", (
     Field("lines", np.float32, (8,), NAME, "t >= c + s u, t <= c + s u (x axis), then the same in v (y axis): "

@@ -18,7 +18,13 @@ from pipeline_sim.records import TILE_IDS
 from units.rounding import MARGIN_PX
 from units.tile_test_bounds import box_time_interval
 
-EVENTS = ("coarse_tiles_tested", "coarse_tiles_rejected", "tiles_emitted")
+# its events, in the order of the kernel's event vector, and what each counts
+EVENT_MEANINGS = {
+    "coarse_tiles_tested": "coarse tiles tested against a triangle's bounds",
+    "coarse_tiles_rejected": "coarse tiles rejected",
+    "tiles_emitted": "(triangle, tile) records emitted",
+}
+EVENTS = tuple(EVENT_MEANINGS)
 EV_COARSE, EV_COARSE_REJ, EV_EMIT = range(len(EVENTS))
 # counters timing can move (docs/pipeline.md §4): none; upstream of z-cull, every triangle is seen whatever the timing
 TIMING_DEPENDENT: tuple[str, ...] = ()
@@ -74,6 +80,7 @@ class TileTraverser:
 
     name = "tile_traverser"
     events = EVENTS
+    event_meanings = EVENT_MEANINGS
     timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, table, tile_size: int, width: int, height: int, coarse_test: bool = True):

@@ -46,15 +46,17 @@ from pipeline_sim.definitions import N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
 from pipeline_sim.records import TRIANGLE
 from units.rounding import F32_REL
 
-EVENTS = (
-    "culled_frustum",
-    "culled_backface",
-    "degenerate",
-    "crossing_w0",
-    "moving",
-    "defocused",
-    "mixed_facing",
-)
+# its events, in the order of the kernel's event vector, and what each counts
+EVENT_MEANINGS = {
+    "culled_frustum": "triangles outside the view frustum at every time and lens position",
+    "culled_backface": "triangles facing away at every (t, u, v)",
+    "degenerate": "triangles of zero area throughout",
+    "crossing_w0": "triangles with a vertex path crossing w = 0",
+    "moving": "triangles that move during the shutter",
+    "defocused": "triangles with a lens shift",
+    "mixed_facing": "triangles whose facing changes over (t, u, v)",
+}
+EVENTS = tuple(EVENT_MEANINGS)
 EV_FRUSTUM, EV_BACKFACE, EV_DEGENERATE, EV_W0, EV_MOVING, EV_DEFOCUS, EV_MIXED = range(len(EVENTS))
 # counters timing can move (docs/pipeline.md §4): none; upstream of z-cull, every triangle is seen whatever the timing
 TIMING_DEPENDENT: tuple[str, ...] = ()
@@ -494,6 +496,7 @@ class TriangleSetup:
 
     name = "triangle_setup"
     events = EVENTS
+    event_meanings = EVENT_MEANINGS
     timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, draw, tile_size: int, backface_culling: bool = False,

@@ -22,7 +22,13 @@ import numpy as np
 
 from pipeline_sim.definitions import N_OPS, OP_CMP, OP_MUL
 
-EVENTS = ("tiles_culled", "tiles_no_depth_read", "box_lookups")
+# its events, in the order of the kernel's event vector, and what each counts
+EVENT_MEANINGS = {
+    "tiles_culled": "tiles z-cull rejected as hidden",
+    "tiles_no_depth_read": "tiles z-cull found in front of everything drawn (the ROP skips their depth reads)",
+    "box_lookups": "z-cull box lookups",
+}
+EVENTS = tuple(EVENT_MEANINGS)
 EV_CULLED, EV_NOREAD, EV_LOOKUPS = range(len(EVENTS))
 # counters timing can move (docs/pipeline.md §4): what it culls and lets skip depth reads depends on the
 # refreshes that reached it; the lookups (and their arithmetic and bytes) follow each record's intervals only
@@ -187,6 +193,7 @@ class ZCull:
 
     name = "zcull"
     events = EVENTS
+    event_meanings = EVENT_MEANINGS
     timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, depth_func: str, tile_size: int, width: int, height: int, clear_depth: float,
