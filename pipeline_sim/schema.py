@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import types
 import typing
 from typing import Any, Literal
 
@@ -53,19 +54,56 @@ def _unwrap(annotation: Any) -> Any:
     return typing.get_args(annotation)[0] if typing.get_origin(annotation) is typing.Annotated else annotation
 
 
-def _class_at(cls: type, names: tuple[str, ...]) -> type | None:
-    """The settings dataclass reached from ``cls`` through the fields ``names``."""
-    for name in names:
-        hints = typing.get_type_hints(cls, include_extras=True) if dataclasses.is_dataclass(cls) else {}
-        if name not in hints:
+def _plain(annotation: Any) -> Any:
+    """``annotation`` without its constraints, and ``X`` of an optional ``X | None``."""
+    annotation = _unwrap(annotation)
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        annotation = _unwrap(next(a for a in typing.get_args(annotation) if a is not type(None)))
+    return annotation
+
+
+def _step(annotation: Any, part: str | int) -> Any:
+    """The annotation of ``part`` (a field name or a list index) inside a value of ``annotation``."""
+    annotation = _plain(annotation)
+    if isinstance(part, int):
+        args = typing.get_args(annotation)
+        return args[0] if typing.get_origin(annotation) in (list, tuple) and args else None
+    if isinstance(annotation, type) and dataclasses.is_dataclass(annotation):
+        return typing.get_type_hints(annotation, include_extras=True).get(part)
+    args = typing.get_args(annotation)  # dict[str, X]: every key's value is an X
+    return args[1] if typing.get_origin(annotation) is dict and len(args) == 2 else None
+
+
+def _annotation(cls: type, loc: tuple[str | int, ...]) -> Any:
+    """The annotation reached from the dataclass ``cls`` through ``loc`` (field names and list indices)."""
+    annotation: Any = cls
+    for part in loc:
+        if annotation is None:
             return None
-        cls = _unwrap(hints[name])
-    return cls if isinstance(cls, type) and dataclasses.is_dataclass(cls) else None
+        annotation = _step(annotation, part)
+    return annotation
 
 
-def _annotation(cls: type, loc: tuple[str, ...]) -> Any:
+def _class_at(cls: type, loc: tuple[str | int, ...]) -> type | None:
+    """The settings dataclass reached from ``cls`` through ``loc``."""
+    found = _plain(_annotation(cls, loc))
+    return found if isinstance(found, type) and dataclasses.is_dataclass(found) else None
+
+
+def key_path(loc: tuple[str | int, ...]) -> str:
+    """A key's place as messages show it: ``objects[2].open.rotate``."""
+    out = ""
+    for part in loc:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out
+
+
+def _doc(cls: type, loc: tuple[str | int, ...]) -> str:
     owner = _class_at(cls, loc[:-1])
-    return typing.get_type_hints(owner, include_extras=True).get(loc[-1]) if owner is not None else None
+    if owner is None or isinstance(loc[-1], int):
+        return ""
+    f = next((f for f in dataclasses.fields(owner) if f.name == loc[-1]), None)
+    return f.metadata.get("doc", "") if f is not None else ""
 
 
 def field_constraints(annotation: Any) -> dict[str, Any]:
@@ -85,17 +123,28 @@ def field_constraints(annotation: Any) -> dict[str, Any]:
     return out
 
 
-def _message(cls: type, err: dict[str, Any], where: str, prefix: tuple[str, ...]) -> UserError:
-    loc = tuple(str(p) for p in err["loc"])
-    path = ".".join(prefix + loc)
-    table = ".".join(prefix + loc[:-1])
+def _message(cls: type, err: dict[str, Any], where: str, prefix: tuple[str | int, ...]) -> UserError:
+    loc = tuple(err["loc"])
+    path = key_path(prefix + loc)
+    table = key_path(prefix + loc[:-1])
     kind, value = err["type"], err.get("input")
     if kind in ("unexpected_keyword_argument", "extra_forbidden"):
         owner = _class_at(cls, loc[:-1])
         known = [f.name for f in dataclasses.fields(owner)] if owner is not None else []
-        return unknown_key_error(f"{where}: [{table}]" if table else where, loc[-1], known)
-    if kind in ("dataclass_type", "dataclass_exact_type", "dataclass_args_type", "model_type"):
+        return unknown_key_error(f"{where}: [{table}]" if table else where, str(loc[-1]), known)
+    if kind == "missing" or kind == "missing_argument":
+        doc = _doc(cls, loc)
+        return UserError(f"{where}: {path}: missing required key{f' ({doc})' if doc else ''}")
+    if kind in ("dataclass_type", "dataclass_exact_type", "dataclass_args_type", "model_type", "dict_type"):
         return UserError(f"{where}: [{path}] must be a table, got {shown(value)}")
+    if kind in ("list_type", "tuple_type"):
+        return UserError(f"{where}: {path}: expected a list, got {shown(value)}")
+    if kind in ("too_short", "string_too_short") and err["ctx"]["min_length"] == 1:
+        return UserError(f"{where}: {path}: must not be empty")
+    if kind in ("too_short", "too_long"):
+        ctx = err["ctx"]
+        bound = f"at least {ctx['min_length']}" if kind == "too_short" else f"at most {ctx['max_length']}"
+        return UserError(f"{where}: {path}: expected {bound} items, got {ctx['actual_length']}")
     c = field_constraints(_annotation(cls, loc))
     if "choices" in c:
         choices = c["choices"]
@@ -112,11 +161,11 @@ def _message(cls: type, err: dict[str, Any], where: str, prefix: tuple[str, ...]
     return UserError(f"{where}: {path}: {err['msg']}, got {shown(value)}")
 
 
-def build(cls: type, data: Any, where: str, prefix: tuple[str, ...] = ()) -> Any:
+def build(cls: type, data: Any, where: str, prefix: tuple[str | int, ...] = ()) -> Any:
     """Validate ``data`` (a parsed TOML table) as the dataclass ``cls`` and run its ``check``; a problem
-    is one :class:`UserError` naming ``where`` and the key's dotted path (after ``prefix``)."""
+    is one :class:`UserError` naming ``where`` and the key's path (after ``prefix``, as :func:`key_path`)."""
     if not isinstance(data, dict):
-        label = f"[{'.'.join(prefix)}]" if prefix else "the file"
+        label = f"[{key_path(prefix)}]" if prefix else "the file"
         raise UserError(f"{where}: {label} must be a table, got {shown(data)}")
     try:
         obj = adapter(cls).validate_python(data)
@@ -126,15 +175,20 @@ def build(cls: type, data: Any, where: str, prefix: tuple[str, ...] = ()) -> Any
     return obj
 
 
-def check(obj: Any, where: str, prefix: tuple[str, ...] = ()) -> None:
-    """Run the rules between keys of ``obj`` and of every settings dataclass it holds."""
+def check(obj: Any, where: str, prefix: tuple[str | int, ...] = ()) -> None:
+    """Run the rules between keys of ``obj`` and of every settings dataclass it holds (in its fields and
+    in lists of them)."""
     for f in dataclasses.fields(obj):
         value = getattr(obj, f.name)
         if dataclasses.is_dataclass(value):
             check(value, where, prefix + (f.name,))
+        elif isinstance(value, list):
+            for i, item in enumerate(value):
+                if dataclasses.is_dataclass(item):
+                    check(item, where, prefix + (f.name, i))
     rule = getattr(obj, "check", None)
     if rule is not None:
-        rule(f"{where}: {'.'.join(prefix)}" if prefix else where)
+        rule(f"{where}: {key_path(prefix)}" if prefix else where)
 
 
 def merged(base: Any, data: dict[str, Any]) -> dict[str, Any]:

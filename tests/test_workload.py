@@ -186,3 +186,28 @@ def test_report_reads_a_run_folder(negative, tmp_path, capsys):
     mine = tmp_path / "mine.html"
     mine.write_text("my notes")
     assert main(["report", str(out), "-o", str(mine)]) == 2 and mine.read_text() == "my notes"
+
+
+def test_a_sweep_runs_any_kind(negative, tmp_path):
+    """A sweep over the two-pass kind: every point loaded and checked as its workload (a spp the
+    workload's check refuses names the point), then run end to end; each point's image is the
+    negative of its own first pass (numpy), with no single image to measure against a reference."""
+    from pipeline_sim.sweep import load_sweep, run_sweep
+
+    sweep = tmp_path / "s.toml"
+    sweep.write_text(f'[sweep]\nscene = "{negative.relative_to(tmp_path)}"\nmetrics = ["rmse"]\n'
+                     '[grid]\n"image.spp" = [1, 4]\n"tile_test.algorithm" = ["bbox", "hierarchical"]\n')
+    spec = load_sweep(sweep)
+    assert len(spec.points) == 4 and spec.scene == negative.resolve()
+    frame = run_sweep(spec, tmp_path / "out", executor="serial", progress=False)
+    assert (frame.status == "ok").all(), frame.error.tolist()
+    assert frame.rmse.isna().all()
+    for pid in frame.point_id:
+        point = tmp_path / "out" / "points" / pid
+        first = np.load(point / "passes" / "scene" / "image.npy")
+        np.testing.assert_allclose(np.load(point / "image.npy")[..., :3], 1.0 - first[..., :3], atol=1e-6)
+        assert json.loads((point / "run.json").read_text())["kind"] == "negative"
+    sweep.write_text(sweep.read_text().replace("[1, 4]", "[1, 3]"))
+    with pytest.raises(UserError, match=r"s.toml: point image.spp=3, tile_test.algorithm=\"bbox\": "
+                                        r"spp = 3 must be a power of two"):
+        load_sweep(sweep)
