@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import re
 import sys
+import types
 import typing
 from pathlib import Path
 
@@ -28,6 +29,7 @@ from pipeline_sim.definitions import ARITHMETIC, COMMON
 from pipeline_sim.pass_state import PassState
 from pipeline_sim.settings import EFFECTS
 from pipeline_sim.simulation import SimOptions
+from pipeline_sim.sweep import ReferenceTable, SweepTable
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -92,6 +94,15 @@ COUNTER_MEANINGS = {
 
 
 def _type_text(annotation: typing.Any) -> str:
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):  # X | None
+        annotation = next(a for a in typing.get_args(annotation) if a is not type(None))
+    base = schema.plain(annotation)
+    if typing.get_origin(base) is list:
+        return "list of " + _type_text(typing.get_args(base)[0])
+    if typing.get_origin(base) is dict:
+        return "table"
+    if dataclasses.is_dataclass(base):
+        return "table"
     c = schema.field_constraints(annotation)
     if "choices" in c:
         return "one of " + ", ".join(f"`{x}`" for x in c["choices"])
@@ -102,6 +113,8 @@ def _type_text(annotation: typing.Any) -> str:
 
 
 def _value(v: typing.Any) -> str:
+    if isinstance(v, list):
+        return ", ".join(_value(x) for x in v)
     return f"`{str(v).lower() if isinstance(v, bool) else v}`"
 
 
@@ -151,6 +164,48 @@ def sweep_paths() -> str:
     return "\n".join(rows)
 
 
+def schema_table(cls: type, prefix: str = "") -> str:
+    """One row per key of the file-schema dataclass ``cls`` (and of the tables it holds): key, type,
+    default, meaning (each field's ``doc``)."""
+    rows = ["| key | type | default | meaning |", "|---|---|---|---|"]
+
+    def walk(klass: type, path: str) -> None:
+        hints = typing.get_type_hints(klass, include_extras=True)
+        for f in dataclasses.fields(klass):
+            inner = schema.plain(hints[f.name])
+            if dataclasses.is_dataclass(inner):
+                walk(inner, f"{path}{f.name}.")
+                continue
+            if f.default is not dataclasses.MISSING:
+                default = "none" if f.default is None else _value(f.default)
+            elif f.default_factory is not dataclasses.MISSING:
+                made = f.default_factory()
+                default = _value(made) if made or isinstance(made, (int, float)) else "empty"
+            else:
+                default = "required"
+            rows.append(f"| `{prefix}{path}{f.name}` | {_type_text(hints[f.name])} | {default} | "
+                        f"{f.metadata.get('doc', '')} |")
+
+    walk(cls, "")
+    return "\n".join(rows)
+
+
+def workload_kinds() -> str:
+    """Every registered workload kind with the keys of its file (from its ``file_schema``)."""
+    from pipeline_sim.workload import kind_of, kinds
+
+    parts = []
+    for name in kinds():
+        cls = kind_of(name, "docgen")
+        if cls.file_schema is None:
+            what = " ".join((cls.__doc__ or "").strip().split("\n\n")[0].split())
+            what = re.sub(r":\w+:`~?([^`]+)`", r"`\1`", what).replace("``", "`")
+            parts.append(f"### `{name}`\n\n{what} Its file is checked by the kind's own reader.")
+        else:
+            parts.append(f"### `{name}`\n\n{schema_table(cls.file_schema)}")
+    return "\n\n".join(parts)
+
+
 def unit_counters() -> list[tuple[str, tuple[str, ...], tuple[str, ...]]]:
     """(unit, its events, its timing-dependent counters) in pipeline order, from the units' declarations."""
     from units.rop import Rop
@@ -180,7 +235,11 @@ BLOCKS = {
                                     "effects": effects_table},
     "docs/scene-format.md": {"pass settings": lambda: settings_table(PassState(), PASS + "."),
                              "simulation settings": lambda: settings_table(SimOptions(), SIMULATION + ".")},
-    "docs/sweep-format.md": {"sweep paths": sweep_paths},
+    "docs/sweep-format.md": {"sweep tables": lambda: "\n\n".join(
+                                 f"`[{name}]`:\n\n{schema_table(cls)}" for name, cls in
+                                 (("sweep", SweepTable), ("reference", ReferenceTable))),
+                             "sweep paths": sweep_paths},
+    "docs/workloads.md": {"workload kinds": workload_kinds},
     "docs/counters.md": {"counter glossary": counter_glossary},
 }
 

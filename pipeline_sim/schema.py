@@ -27,6 +27,7 @@ from pydantic.fields import FieldInfo
 
 from pipeline_sim.errors import UserError, did_you_mean, unknown_key_error
 
+_UNKNOWN = ("unexpected_keyword_argument", "extra_forbidden")
 _EXPECTED = {"int": "an integer", "float": "a number", "bool": "true or false", "str": "a string"}
 
 
@@ -54,7 +55,7 @@ def _unwrap(annotation: Any) -> Any:
     return typing.get_args(annotation)[0] if typing.get_origin(annotation) is typing.Annotated else annotation
 
 
-def _plain(annotation: Any) -> Any:
+def plain(annotation: Any) -> Any:
     """``annotation`` without its constraints, and ``X`` of an optional ``X | None``."""
     annotation = _unwrap(annotation)
     if typing.get_origin(annotation) in (typing.Union, types.UnionType):
@@ -64,7 +65,7 @@ def _plain(annotation: Any) -> Any:
 
 def _step(annotation: Any, part: str | int) -> Any:
     """The annotation of ``part`` (a field name or a list index) inside a value of ``annotation``."""
-    annotation = _plain(annotation)
+    annotation = plain(annotation)
     if isinstance(part, int):
         args = typing.get_args(annotation)
         return args[0] if typing.get_origin(annotation) in (list, tuple) and args else None
@@ -86,7 +87,7 @@ def _annotation(cls: type, loc: tuple[str | int, ...]) -> Any:
 
 def _class_at(cls: type, loc: tuple[str | int, ...]) -> type | None:
     """The settings dataclass reached from ``cls`` through ``loc``."""
-    found = _plain(_annotation(cls, loc))
+    found = plain(_annotation(cls, loc))
     return found if isinstance(found, type) and dataclasses.is_dataclass(found) else None
 
 
@@ -128,7 +129,7 @@ def _message(cls: type, err: dict[str, Any], where: str, prefix: tuple[str | int
     path = key_path(prefix + loc)
     table = key_path(prefix + loc[:-1])
     kind, value = err["type"], err.get("input")
-    if kind in ("unexpected_keyword_argument", "extra_forbidden"):
+    if kind in _UNKNOWN:
         owner = _class_at(cls, loc[:-1])
         known = [f.name for f in dataclasses.fields(owner)] if owner is not None else []
         return unknown_key_error(f"{where}: [{table}]" if table else where, str(loc[-1]), known)
@@ -170,7 +171,10 @@ def build(cls: type, data: Any, where: str, prefix: tuple[str | int, ...] = ()) 
     try:
         obj = adapter(cls).validate_python(data)
     except ValidationError as exc:
-        raise _message(cls, exc.errors()[0], where, prefix) from None
+        errors = exc.errors()
+        # a misspelt key is also a missing one: name the misspelling, with the nearest known name
+        first = next((e for e in errors if e["type"] in _UNKNOWN), errors[0])
+        raise _message(cls, first, where, prefix) from None
     check(obj, where, prefix)
     return obj
 

@@ -1,11 +1,11 @@
-"""Parameter sweeps: run a scene over a grid of settings, with accuracy metrics.
+"""Parameter sweeps: run a workload (a scene or any kind) over a grid of settings, with accuracy metrics.
 
 A sweep file is TOML. Paths in it are relative to the sweep file itself:
 
 .. code-block:: toml
 
     [sweep]
-    scene = "../scenes/default.toml"          # required
+    scene = "../scenes/default.toml"          # required: a workload file (pipeline_sim.workload)
     arch = "my_arch.toml"                     # optional, applied over the default architecture
     set = ["zcull.time_slices=4"]             # optional fixed overrides for every point (as `run --set`)
     metrics = ["rmse", "psnr", "ssim", "flip"]  # optional subset of the metrics; default all
@@ -33,12 +33,15 @@ whose values are the tuples), the last axis varying fastest. The point
 settings are applied after ``arch`` and ``set``. A sweep with no axes has one
 point (the scene as it is).
 
-Everything is checked before anything runs (:func:`load_sweep`): unknown
-tables, keys and setting paths (with the nearest known name suggested),
-empty or repeated value lists, zip groups of unequal length, a missing scene
-or architecture file, and every point's architecture (built with
-:func:`~pipeline_sim.config.load_arch`) and image settings. A problem is a
-one-line :class:`~pipeline_sim.errors.UserError` naming the file and key.
+Everything is checked before anything runs (:func:`load_sweep`): the tables
+against their schema (:class:`SweepFile`, through ``pipeline_sim.schema``:
+unknown keys with the nearest known name, types, required keys), setting
+paths, empty or repeated value lists, zip groups of unequal length, a missing
+workload or architecture file, and every point: its workload loaded
+(:func:`~pipeline_sim.workload.load_workload`) with its settings
+(``with_settings``) and checked as ``run`` checks it (its ``check``). A
+problem is a one-line :class:`~pipeline_sim.errors.UserError` naming the
+file and key.
 
 Every point has a stable id, :func:`point_id`: a short hex hash of its sorted
 setting assignments, so a resumed or extended sweep finds finished points
