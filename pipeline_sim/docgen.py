@@ -19,7 +19,6 @@ from __future__ import annotations
 import dataclasses
 import re
 import sys
-import types
 import typing
 from pathlib import Path
 
@@ -94,8 +93,7 @@ COUNTER_MEANINGS = {
 
 
 def _type_text(annotation: typing.Any) -> str:
-    if typing.get_origin(annotation) in (typing.Union, types.UnionType):  # X | None
-        annotation = next(a for a in typing.get_args(annotation) if a is not type(None))
+    annotation = schema.required(annotation)
     base = schema.plain(annotation)
     if typing.get_origin(base) is list:
         return "list of " + _type_text(typing.get_args(base)[0])

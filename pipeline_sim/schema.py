@@ -55,12 +55,16 @@ def _unwrap(annotation: Any) -> Any:
     return typing.get_args(annotation)[0] if typing.get_origin(annotation) is typing.Annotated else annotation
 
 
+def required(annotation: Any) -> Any:
+    """``X`` of an optional ``X | None`` (constraints kept); any other annotation as it is."""
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        return next(a for a in typing.get_args(annotation) if a is not type(None))
+    return annotation
+
+
 def plain(annotation: Any) -> Any:
     """``annotation`` without its constraints, and ``X`` of an optional ``X | None``."""
-    annotation = _unwrap(annotation)
-    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
-        annotation = _unwrap(next(a for a in typing.get_args(annotation) if a is not type(None)))
-    return annotation
+    return _unwrap(required(_unwrap(annotation)))
 
 
 def _step(annotation: Any, part: str | int) -> Any:
@@ -108,7 +112,8 @@ def _doc(cls: type, loc: tuple[str | int, ...]) -> str:
 
 
 def field_constraints(annotation: Any) -> dict[str, Any]:
-    """``base`` (the Python type), ``choices`` (a Literal's), ``ge`` and ``le`` of a field annotation."""
+    """``base`` (the Python type), ``choices`` (a Literal's), the bounds ``ge``, ``gt``, ``le``, ``lt`` and
+    a list's ``min_length`` and ``max_length`` of a field annotation."""
     out: dict[str, Any] = {}
     args = typing.get_args(annotation) if typing.get_origin(annotation) is typing.Annotated else (annotation,)
     base = args[0] if args else annotation
@@ -118,10 +123,36 @@ def field_constraints(annotation: Any) -> dict[str, Any]:
     out["base"] = base
     for meta in args[1:]:
         for m in (meta.metadata if isinstance(meta, FieldInfo) else [meta]):
-            for bound in ("ge", "le"):
-                if hasattr(m, bound):
+            for bound in ("ge", "gt", "le", "lt", "min_length", "max_length"):
+                if getattr(m, bound, None) is not None:
                     out[bound] = getattr(m, bound)
     return out
+
+
+def _range(c: dict[str, Any]) -> str:
+    """The range of a number's constraints, as messages say it."""
+    if "ge" in c and "le" in c:
+        return f"from {c['ge']:g} to {c['le']:g}"
+    low = f"{'[' if 'ge' in c else '('}{c.get('ge', c.get('gt', '-inf')):g}" if "ge" in c or "gt" in c else None
+    high = f"{c.get('le', c.get('lt', 'inf')):g}{']' if 'le' in c else ')'}" if "le" in c or "lt" in c else None
+    if low and high:
+        return f"in {low}, {high}"
+    if low:
+        return f"{'>=' if 'ge' in c else '>'} {low[1:]}"
+    return f"{'<=' if 'le' in c else '<'} {high[:-1]}"
+
+
+def _items(cls: type, loc: tuple[str | int, ...]) -> str:
+    """What a list at ``loc`` holds, as messages say it: ``3 numbers``, ``an array of tables``, ``a list``."""
+    annotation = _annotation(cls, loc)
+    c = field_constraints(required(annotation))
+    item = plain(_step(annotation, 0)) if annotation is not None else None
+    if isinstance(item, type) and dataclasses.is_dataclass(item):
+        return f"an array of tables ([[{loc[-1]}]])"
+    noun = "numbers" if item is float else "items"
+    if c.get("min_length") is not None and c.get("min_length") == c.get("max_length"):
+        return f"{c['min_length']} {noun}"
+    return "a list"
 
 
 def _message(cls: type, err: dict[str, Any], where: str, prefix: tuple[str | int, ...]) -> UserError:
@@ -132,21 +163,28 @@ def _message(cls: type, err: dict[str, Any], where: str, prefix: tuple[str | int
     if kind in _UNKNOWN:
         owner = _class_at(cls, loc[:-1])
         known = [f.name for f in dataclasses.fields(owner)] if owner is not None else []
-        return unknown_key_error(f"{where}: [{table}]" if table else where, str(loc[-1]), known)
+        key = str(loc[-1])
+        key = key if key.isprintable() else key.encode("unicode_escape").decode("ascii")  # one line
+        return unknown_key_error(f"{where}: [{table}]" if table else where, key, known)
     if kind == "missing" or kind == "missing_argument":
         doc = _doc(cls, loc)
         return UserError(f"{where}: {path}: missing required key{f' ({doc})' if doc else ''}")
     if kind in ("dataclass_type", "dataclass_exact_type", "dataclass_args_type", "model_type", "dict_type"):
         return UserError(f"{where}: [{path}] must be a table, got {shown(value)}")
     if kind in ("list_type", "tuple_type"):
-        return UserError(f"{where}: {path}: expected a list, got {shown(value)}")
+        return UserError(f"{where}: {path}: expected {_items(cls, loc)}, got {shown(value)}")
     if kind in ("too_short", "string_too_short") and err["ctx"]["min_length"] == 1:
         return UserError(f"{where}: {path}: must not be empty")
     if kind in ("too_short", "too_long"):
         ctx = err["ctx"]
-        bound = f"at least {ctx['min_length']}" if kind == "too_short" else f"at most {ctx['max_length']}"
-        return UserError(f"{where}: {path}: expected {bound} items, got {ctx['actual_length']}")
-    c = field_constraints(_annotation(cls, loc))
+        expected = _items(cls, loc)
+        if expected == "a list" or expected.startswith("an array"):
+            expected = (f"at least {ctx['min_length']}" if kind == "too_short" else f"at most {ctx['max_length']}"
+                        ) + " items"
+        return UserError(f"{where}: {path}: expected {expected}, got {ctx['actual_length']}")
+    if kind == "finite_number":
+        return UserError(f"{where}: {path}: expected a finite number, got {shown(value)}")
+    c = field_constraints(required(_annotation(cls, loc)))
     if "choices" in c:
         choices = c["choices"]
         return UserError(f"{where}: {path}: {shown(value) if not isinstance(value, str) else repr(value)} is not one "
@@ -156,9 +194,8 @@ def _message(cls: type, err: dict[str, Any], where: str, prefix: tuple[str | int
         if expected == "a number" and isinstance(value, int) and not isinstance(value, bool):
             expected = "a finite number"
         return UserError(f"{where}: {path}: expected {expected}, got {shown(value)}")
-    if "ge" in c or "le" in c:
-        return UserError(f"{where}: {path}: must be from {c.get('ge', '-inf'):g} to {c.get('le', 'inf'):g}, "
-                         f"got {shown(value)}")
+    if any(b in c for b in ("ge", "gt", "le", "lt")):
+        return UserError(f"{where}: {path}: must be {_range(c)}, got {shown(value)}")
     return UserError(f"{where}: {path}: {err['msg']}, got {shown(value)}")
 
 
