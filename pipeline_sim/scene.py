@@ -1,6 +1,8 @@
 """Scene files: a TOML description of the image, camera, light and objects.
 
-A scene file is TOML. Every problem in it is reported as a one-line
+A scene file is TOML, validated against its schema (the ``*Table`` and
+``*Object`` dataclasses below, through ``pipeline_sim.schema``; the rules
+between keys are code). Every problem in it is reported as a one-line
 :class:`~pipeline_sim.errors.UserError` naming the file and the key path,
 for example ``scene.toml: objects[2].open.rotate: expected 3 numbers, got 2``.
 Unknown keys are errors at every level (with the nearest known name
@@ -137,7 +139,7 @@ import math
 import re
 import tomllib
 import warnings
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal

@@ -129,7 +129,7 @@ def field_constraints(annotation: Any) -> dict[str, Any]:
     return out
 
 
-def _range(c: dict[str, Any]) -> str:
+def range_text(c: dict[str, Any]) -> str:
     """The range of a number's constraints, as messages say it."""
     if "ge" in c and "le" in c:
         return f"from {c['ge']:g} to {c['le']:g}"
@@ -195,7 +195,7 @@ def _message(cls: type, err: dict[str, Any], where: str, prefix: tuple[str | int
             expected = "a finite number"
         return UserError(f"{where}: {path}: expected {expected}, got {shown(value)}")
     if any(b in c for b in ("ge", "gt", "le", "lt")):
-        return UserError(f"{where}: {path}: must be {_range(c)}, got {shown(value)}")
+        return UserError(f"{where}: {path}: must be {range_text(c)}, got {shown(value)}")
     return UserError(f"{where}: {path}: {err['msg']}, got {shown(value)}")
 
 
