@@ -519,82 +519,80 @@ Colour = _vector(3, Radiance)
 NumberOrNumbers = Any
 
 
-def _key(doc: str, **kwargs: Any) -> Any:
-    return field(metadata={"doc": doc}, **kwargs)
-
 
 @dataclass
 class ImageTable:
     __pydantic_config__ = FORBID
-    width: count(1, IMAGE_LIMITS["width"]) = _key("pixels")
-    height: count(1, IMAGE_LIMITS["height"]) = _key("pixels")
-    spp: count(1, IMAGE_LIMITS["spp"]) = _key("samples per pixel")
-    seed: count(0, 2**64 - 1) = _key("sample-pattern seed", default=0)
+    width: count(1, IMAGE_LIMITS["width"]) = schema.key("pixels")
+    height: count(1, IMAGE_LIMITS["height"]) = schema.key("pixels")
+    spp: count(1, IMAGE_LIMITS["spp"]) = schema.key("samples per pixel")
+    seed: count(0, 2**64 - 1) = schema.key("sample-pattern seed", default=0)
 
 
 @dataclass
 class LensTable:
     __pydantic_config__ = FORBID
-    radius: Annotated[float, Strict(), Field(ge=0.0, allow_inf_nan=False)] = _key("aperture radius, world units (0: a pinhole)")
-    focus_distance: Positive | None = _key("world units along the view direction (default: eye to look_at)",
+    radius: Annotated[float, Strict(), Field(ge=0.0, allow_inf_nan=False)] = schema.key(
+        "aperture radius, world units (0: a pinhole)")
+    focus_distance: Positive | None = schema.key("world units along the view direction (default: eye to look_at)",
                                            default=None)
 
 
 @dataclass
 class CameraTable:
     __pydantic_config__ = FORBID
-    eye: Vec3 = _key("at shutter open")
-    look_at: Vec3 = _key("at shutter open")
-    near: Positive = _key("near plane distance")
-    far: Finite = _key("far plane distance, > near")
-    projection: Literal[PROJECTIONS] = _key("the projection", default="perspective")
-    up: Vec3 = _key("up direction, need not be orthogonal", default_factory=lambda: [0.0, 1.0, 0.0])
-    fov_y: Annotated[float, Strict(), Field(gt=0.0, lt=180.0, allow_inf_nan=False)] | None = _key(
+    eye: Vec3 = schema.key("at shutter open")
+    look_at: Vec3 = schema.key("at shutter open")
+    near: Positive = schema.key("near plane distance")
+    far: Finite = schema.key("far plane distance, > near")
+    projection: Literal[PROJECTIONS] = schema.key("the projection", default="perspective")
+    up: Vec3 = schema.key("up direction, need not be orthogonal", default_factory=lambda: [0.0, 1.0, 0.0])
+    fov_y: Annotated[float, Strict(), Field(gt=0.0, lt=180.0, allow_inf_nan=False)] | None = schema.key(
         "vertical field of view in degrees (perspective)", default=None)
-    frustum: _vector(4) | None = _key("[left, right, bottom, top]", default=None)
-    ortho_height: Positive | None = _key("orthographic: view volume height", default=None)
-    eye_close: Vec3 | None = _key("eye at shutter close", default=None)
-    look_at_close: Vec3 | None = _key("look_at at shutter close", default=None)
-    lens: LensTable | None = _key("a thin lens (perspective)", default=None)
+    frustum: _vector(4) | None = schema.key("[left, right, bottom, top]", default=None)
+    ortho_height: Positive | None = schema.key("orthographic: view volume height", default=None)
+    eye_close: Vec3 | None = schema.key("eye at shutter close", default=None)
+    look_at_close: Vec3 | None = schema.key("look_at at shutter close", default=None)
+    lens: LensTable | None = schema.key("a thin lens (perspective)", default=None)
 
 
 @dataclass
 class BackgroundTable:
     __pydantic_config__ = FORBID
-    color: Colour = _key("linear RGB", default_factory=lambda: [0.0, 0.0, 0.0])
+    color: Colour = schema.key("linear RGB", default_factory=lambda: [0.0, 0.0, 0.0])
 
 
 @dataclass
 class LightTable:
     __pydantic_config__ = FORBID
-    type: Literal[LIGHT_TYPES] = _key("the light's type", default="directional")
-    direction: Vec3 | None = _key("directional: from the light toward the scene", default=None)
-    position: Vec3 | None = _key("point: its position", default=None)
-    color: Colour = _key("linear RGB", default_factory=lambda: [1.0, 1.0, 1.0])
-    intensity: Radiance = _key("its intensity", default=1.0)
-    ambient: Radiance = _key("the ambient term", default=0.1)
+    type: Literal[LIGHT_TYPES] = schema.key("the light's type", default="directional")
+    direction: Vec3 | None = schema.key("directional: from the light toward the scene", default=None)
+    position: Vec3 | None = schema.key("point: its position", default=None)
+    color: Colour = schema.key("linear RGB", default_factory=lambda: [1.0, 1.0, 1.0])
+    intensity: Radiance = schema.key("its intensity", default=1.0)
+    ambient: Radiance = schema.key("the ambient term", default=0.1)
 
 
 @dataclass
 class TransformTable:
     __pydantic_config__ = FORBID
-    translate: Vec3 | None = _key("translation", default=None)
-    rotate: Vec3 | None = _key("degrees about x, then y, then z", default=None)
-    scale: NumberOrNumbers = _key("a number or [sx, sy, sz], components > 0", default=None)
+    translate: Vec3 | None = schema.key("translation", default=None)
+    rotate: Vec3 | None = schema.key("degrees about x, then y, then z", default=None)
+    scale: NumberOrNumbers = schema.key("a number or [sx, sy, sz], components > 0", default=None)
 
 
 @dataclass
 class ObjectTable:
     __pydantic_config__ = FORBID
-    name: Annotated[str, Strict(), Field(min_length=1)] | None = _key("unique name", default=None)
-    primitive: Literal[PRIMITIVES] | None = _key("a built-in shape", default=None)
-    mesh: Annotated[str, Strict(), Field(min_length=1)] | None = _key("a mesh file, relative to the scene file",
+    name: Annotated[str, Strict(), Field(min_length=1)] | None = schema.key("unique name", default=None)
+    primitive: Literal[PRIMITIVES] | None = schema.key("a built-in shape", default=None)
+    mesh: Annotated[str, Strict(), Field(min_length=1)] | None = schema.key("a mesh file, relative to the scene file",
                                                                        default=None)
-    material: Literal[MATERIALS] = _key("the material", default="lambert")
-    color: Colour = _key("linear RGB", default_factory=lambda: list(DEFAULT_OBJECT_COLOR))
-    use_vertex_colors: Flag = _key("use the mesh file's vertex colours", default=False)
-    open: TransformTable | None = _key("transform at shutter open", default=None)
-    close: TransformTable | None = _key("transform at shutter close", default=None)
+    material: Literal[MATERIALS] = schema.key("the material", default="lambert")
+    color: Colour = schema.key("linear RGB", default_factory=lambda: list(DEFAULT_OBJECT_COLOR))
+    use_vertex_colors: Flag = schema.key("use the mesh file's vertex colours", default=False)
+    open: TransformTable | None = schema.key("transform at shutter open", default=None)
+    close: TransformTable | None = schema.key("transform at shutter close", default=None)
 
 
 # --------------------------------------------------------------------------
@@ -763,34 +761,34 @@ def _cylinder(radius: float, height: float, sections: int) -> _Mesh:
 
 @dataclass
 class SphereObject(ObjectTable):
-    radius: Positive = _key("radius", default=1.0)
-    subdivisions: count(0, 7) = _key("icosphere subdivisions: 20*4^n triangles", default=3)
+    radius: Positive = schema.key("radius", default=1.0)
+    subdivisions: count(0, 7) = schema.key("icosphere subdivisions: 20*4^n triangles", default=3)
 
 
 @dataclass
 class BoxObject(ObjectTable):
-    size: NumberOrNumbers = _key("a number or [x, y, z], > 0", default=(1.0, 1.0, 1.0))
+    size: NumberOrNumbers = schema.key("a number or [x, y, z], > 0", default=(1.0, 1.0, 1.0))
 
 
 @dataclass
 class PlaneObject(ObjectTable):
-    size: NumberOrNumbers = _key("a number or [x, z], > 0", default=(1.0, 1.0))
-    subdivisions: count(0, 1023) = _key("n: an (n+1) x (n+1) grid of quads", default=0)
+    size: NumberOrNumbers = schema.key("a number or [x, z], > 0", default=(1.0, 1.0))
+    subdivisions: count(0, 1023) = schema.key("n: an (n+1) x (n+1) grid of quads", default=0)
 
 
 @dataclass
 class TorusObject(ObjectTable):
-    major_radius: Positive = _key("ring radius", default=1.0)
-    minor_radius: Positive = _key("tube radius, < major_radius", default=0.25)
-    major_sections: count(3, 4096) = _key("sections around the ring", default=32)
-    minor_sections: count(3, 4096) = _key("sections around the tube", default=16)
+    major_radius: Positive = schema.key("ring radius", default=1.0)
+    minor_radius: Positive = schema.key("tube radius, < major_radius", default=0.25)
+    major_sections: count(3, 4096) = schema.key("sections around the ring", default=32)
+    minor_sections: count(3, 4096) = schema.key("sections around the tube", default=16)
 
 
 @dataclass
 class CylinderObject(ObjectTable):
-    radius: Positive = _key("radius", default=0.5)
-    height: Positive = _key("height", default=1.0)
-    sections: count(3, 65536) = _key("sections around the axis", default=32)
+    radius: Positive = schema.key("radius", default=0.5)
+    height: Positive = schema.key("height", default=1.0)
+    sections: count(3, 65536) = schema.key("sections around the axis", default=32)
 
 
 #: Each primitive's object table: the object's keys and the primitive's parameters.
@@ -817,7 +815,8 @@ def _primitive_mesh(r: _Reader, obj: ObjectTable, key: str, primitive: str) -> _
     for name in _PRIMITIVE_PARAMS[primitive]:
         v = getattr(obj, name)
         if name == "size":  # a number or one per axis
-            v = r.number_or_numbers(list(v) if isinstance(v, tuple) else v, f"{key}.{name}", 3 if primitive == "box" else 2)
+            v = r.number_or_numbers(list(v) if isinstance(v, tuple) else v, f"{key}.{name}",
+                                    3 if primitive == "box" else 2)
             if np.any(v <= 0.0):
                 raise r.error(f"{key}.{name}", f"must be > 0, got {_fmt(v)}")
         params[name] = v

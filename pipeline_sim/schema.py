@@ -232,6 +232,13 @@ def check(obj: Any, where: str, prefix: tuple[str | int, ...] = ()) -> None:
         rule(f"{where}: {key_path(prefix)}" if prefix else where)
 
 
+def key(doc: str, **kwargs: Any) -> Any:
+    """A key of an input file's table that is not a setting (a sweep's scene, a workload kind's keys):
+    a dataclass field (``default=`` / ``default_factory=`` as ``dataclasses.field``; none: required)
+    with the one line the generated references show for it."""
+    return dataclasses.field(metadata={"doc": doc}, **kwargs)
+
+
 def merged(base: Any, data: dict[str, Any]) -> dict[str, Any]:
     """``base`` (a settings dataclass) as a fresh dict with the tables of ``data`` laid over it, key by key."""
     def lay(out: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:

@@ -245,20 +245,18 @@ _NonEmpty = Annotated[str, Strict(), Field(min_length=1)]
 _REFERENCE = ReferenceSpec()
 
 
-def _doc(doc: str, **kwargs: Any) -> Any:
-    return field(metadata={"doc": doc}, **kwargs)
-
 
 @dataclass
 class SweepTable:
     """``[sweep]``: what every point runs."""
 
     __pydantic_config__ = FORBID
-    scene: _NonEmpty = _doc("the workload file every point runs (a scene or any kind), relative to the sweep file")
-    arch: _NonEmpty | None = _doc("an architecture file applied over the default one", default=None)
-    set: list[Text] = _doc('"section.key=value" overrides applied to every point, as `run --set`',
+    scene: _NonEmpty = schema.key(
+        "the workload file every point runs (a scene or any kind), relative to the sweep file")
+    arch: _NonEmpty | None = schema.key("an architecture file applied over the default one", default=None)
+    set: list[Text] = schema.key('"section.key=value" overrides applied to every point, as `run --set`',
                            default_factory=list)
-    metrics: Annotated[list[Literal[METRICS]], Field(min_length=1)] = _doc(
+    metrics: Annotated[list[Literal[METRICS]], Field(min_length=1)] = schema.key(
         "the image metrics measured (a subset of " + ", ".join(METRICS) + ")", default_factory=lambda: list(METRICS))
 
     def check(self, where: str) -> None:
@@ -271,12 +269,12 @@ class ReferenceTable:
     """``[reference]``: the image each point is measured against (:class:`~pipeline_sim.accuracy.ReferenceSpec`)."""
 
     __pydantic_config__ = FORBID
-    kind: Literal[REFERENCE_KINDS] = _doc(
+    kind: Literal[REFERENCE_KINDS] = schema.key(
         "`pipeline`: the pipeline at `spp`, one shader execution per sample; `accumulation`: `passes` "
         "single-sample renders averaged", default=_REFERENCE.kind)
-    spp: count(1, 1 << 16) = _doc("pipeline: samples per pixel, a power of two", default=_REFERENCE.spp)
-    passes: count(1) = _doc("accumulation: single-sample passes", default=_REFERENCE.passes)
-    seed: count(0, (1 << 63) - 1) = _doc("the reference's sample seed", default=_REFERENCE.seed)
+    spp: count(1, 1 << 16) = schema.key("pipeline: samples per pixel, a power of two", default=_REFERENCE.spp)
+    passes: count(1) = schema.key("accumulation: single-sample passes", default=_REFERENCE.passes)
+    seed: count(0, (1 << 63) - 1) = schema.key("the reference's sample seed", default=_REFERENCE.seed)
 
 
 @dataclass
@@ -285,10 +283,10 @@ class SweepFile:
     against the settings' own schemas point by point)."""
 
     __pydantic_config__ = FORBID
-    sweep: SweepTable = _doc('a [sweep] table with scene = "..."')
-    reference: ReferenceTable = _doc("the reference image", default_factory=ReferenceTable)
-    grid: dict[str, Any] = _doc("setting path -> its values; every combination", default_factory=dict)
-    zip: list[dict[str, Any]] = _doc("groups of equal-length value lists varied together", default_factory=list)
+    sweep: SweepTable = schema.key('a [sweep] table with scene = "..."')
+    reference: ReferenceTable = schema.key("the reference image", default_factory=ReferenceTable)
+    grid: dict[str, Any] = schema.key("setting path -> its values; every combination", default_factory=dict)
+    zip: list[dict[str, Any]] = schema.key("groups of equal-length value lists varied together", default_factory=list)
 
 
 def load_sweep(path: str | Path) -> SweepSpec:

@@ -113,8 +113,8 @@ class Workload:
     @classmethod
     def load(cls, path: Path, data: Any, arch: ArchConfig, image: dict[str, int]) -> "Workload":
         """Build the workload of file ``path`` (``data``: its parsed TOML, or the :attr:`file_schema`
-        instance validated from it) on ``arch``. ``image``: image settings a command overrides (keys of :data:`IMAGE_KEYS`, already
-        checked); a kind that has no such setting refuses them with one line."""
+        instance validated from it) on ``arch``. ``image``: image settings a command overrides (keys of
+        :data:`IMAGE_KEYS`, already checked); a kind that has no such setting refuses them with one line."""
         raise NotImplementedError
 
     def check(self, variants: list["Workload"] | None = None, *, reference_spp: int | None = None) -> str:
