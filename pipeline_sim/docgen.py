@@ -28,6 +28,7 @@ from pipeline_sim.counters import counter_meanings
 from pipeline_sim.pass_state import PassState
 from pipeline_sim.settings import EFFECTS
 from pipeline_sim.simulation import SimOptions
+from pipeline_sim.sweep import ReferenceTable, SweepTable
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -42,16 +43,31 @@ EFFECT_MEANINGS = {
 
 
 def _type_text(annotation: typing.Any) -> str:
+    annotation = schema.required(annotation)
+    base = schema.plain(annotation)
+    if base is typing.Any:
+        return "see its meaning"
+    if typing.get_origin(base) is list:
+        c = schema.field_constraints(annotation)
+        n = c.get("min_length")
+        return (f"{n} x " if n is not None and n == c.get("max_length") else "list of ") + \
+            _type_text(typing.get_args(base)[0])
+    if typing.get_origin(base) is dict or dataclasses.is_dataclass(base):
+        return "table"
     c = schema.field_constraints(annotation)
     if "choices" in c:
         return "one of " + ", ".join(f"`{x}`" for x in c["choices"])
     name = {"int": "integer", "float": "number", "bool": "true or false", "str": "string"}[c["base"].__name__]
     if "ge" in c and "le" in c:
         return f"{name}, {c['ge']:g} to {c['le']:g}"
+    if any(b in c for b in ("ge", "gt", "le", "lt")):
+        return f"{name}, {schema.range_text(c)}"
     return name
 
 
 def _value(v: typing.Any) -> str:
+    if isinstance(v, list):
+        return ", ".join(_value(x) for x in v)
     return f"`{str(v).lower() if isinstance(v, bool) else v}`"
 
 
@@ -101,6 +117,63 @@ def sweep_paths() -> str:
     return "\n".join(rows)
 
 
+def schema_table(cls: type, prefix: str = "", skip: tuple[str, ...] = ()) -> str:
+    """One row per key of the file-schema dataclass ``cls`` (and of the tables it holds) but ``skip``:
+    key, type, default, meaning (each field's ``doc``)."""
+    rows = ["| key | type | default | meaning |", "|---|---|---|---|"]
+
+    def walk(klass: type, path: str) -> None:
+        hints = typing.get_type_hints(klass, include_extras=True)
+        for f in dataclasses.fields(klass):
+            if not path and f.name in skip:
+                continue
+            inner = schema.plain(hints[f.name])
+            if dataclasses.is_dataclass(inner):
+                walk(inner, f"{path}{f.name}.")
+                continue
+            if f.default is not dataclasses.MISSING:
+                default = "none" if f.default is None else _value(list(f.default) if isinstance(f.default, tuple)
+                                                                  else f.default)
+            elif f.default_factory is not dataclasses.MISSING:
+                made = f.default_factory()
+                default = _value(made) if made or isinstance(made, (int, float)) else "empty"
+            else:
+                default = "required"
+            rows.append(f"| `{prefix}{path}{f.name}` | {_type_text(hints[f.name])} | {default} | "
+                        f"{f.metadata.get('doc', '')} |")
+
+    walk(cls, "")
+    return "\n".join(rows)
+
+
+def scene_tables() -> str:
+    """The scene file's tables and each primitive's parameters, from their schema."""
+    from pipeline_sim import scene as S
+
+    tables = [("image", S.ImageTable), ("camera", S.CameraTable), ("background", S.BackgroundTable),
+              ("light", S.LightTable), ("[objects]", S.ObjectTable)]
+    parts = [f"`[{name}]`:\n\n{schema_table(cls)}" for name, cls in tables]
+    parts += [f"`primitive = \"{name}\"`, its parameters:\n\n{schema_table(cls, skip=S._OBJECT_KEYS)}"
+              for name, cls in S._PRIMITIVE_TABLES.items()]
+    return "\n\n".join(parts)
+
+
+def workload_kinds() -> str:
+    """Every registered workload kind with the keys of its file (from its ``file_schema``)."""
+    from pipeline_sim.workload import kind_of, kinds
+
+    parts = []
+    for name in kinds():
+        cls = kind_of(name, "docgen")
+        if cls.file_schema is None:
+            what = " ".join((cls.__doc__ or "").strip().split("\n\n")[0].split())
+            what = re.sub(r":\w+:`~?([^`]+)`", r"`\1`", what).replace("``", "`")
+            parts.append(f"### `{name}`\n\n{what} Its file is checked by the kind's own reader.")
+        else:
+            parts.append(f"### `{name}`\n\n{schema_table(cls.file_schema)}")
+    return "\n\n".join(parts)
+
+
 def unit_counters() -> list[tuple[str, dict[str, str], tuple[str, ...]]]:
     """(unit, each counter with what it counts, its timing-dependent counters) in pipeline order, from the
     units' declarations."""
@@ -128,9 +201,14 @@ def counter_glossary() -> str:
 BLOCKS = {
     "docs/architecture-format.md": {"hardware settings": lambda: settings_table(ArchConfig()),
                                     "effects": effects_table},
-    "docs/scene-format.md": {"pass settings": lambda: settings_table(PassState(), PASS + "."),
+    "docs/scene-format.md": {"scene tables": scene_tables,
+                             "pass settings": lambda: settings_table(PassState(), PASS + "."),
                              "simulation settings": lambda: settings_table(SimOptions(), SIMULATION + ".")},
-    "docs/sweep-format.md": {"sweep paths": sweep_paths},
+    "docs/sweep-format.md": {"sweep tables": lambda: "\n\n".join(
+                                 f"`[{name}]`:\n\n{schema_table(cls)}" for name, cls in
+                                 (("sweep", SweepTable), ("reference", ReferenceTable))),
+                             "sweep paths": sweep_paths},
+    "docs/workloads.md": {"workload kinds": workload_kinds},
     "docs/counters.md": {"counter glossary": counter_glossary},
 }
 

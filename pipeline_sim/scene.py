@@ -1,6 +1,8 @@
 """Scene files: a TOML description of the image, camera, light and objects.
 
-A scene file is TOML. Every problem in it is reported as a one-line
+A scene file is TOML, validated against its schema (the ``*Table`` and
+``*Object`` dataclasses below, through ``pipeline_sim.schema``; the rules
+between keys are code). Every problem in it is reported as a one-line
 :class:`~pipeline_sim.errors.UserError` naming the file and the key path,
 for example ``scene.toml: objects[2].open.rotate: expected 3 numbers, got 2``.
 Unknown keys are errors at every level (with the nearest known name
@@ -137,16 +139,20 @@ import math
 import re
 import tomllib
 import warnings
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
 
+from pydantic import Field, Strict
+
+from . import schema
 from .config import pass_state_from, sim_options_from
-from .errors import UserError, did_you_mean, read_input_text, unknown_key_error
+from .errors import UserError, read_input_text, unknown_key_error
 from .pass_state import PassState
+from .settings import FORBID, Flag, count, number
 from .simulation import SimOptions
 
 __all__ = [
@@ -164,6 +170,7 @@ __all__ = [
 ]
 
 MATERIALS = ("flat", "lambert")
+PRIMITIVES = ("sphere", "box", "plane", "torus", "cylinder")
 PROJECTIONS = ("perspective", "orthographic")
 LIGHT_TYPES = ("directional", "point")
 MESH_FORMATS = (".obj", ".ply", ".stl", ".off", ".gltf", ".glb")
@@ -492,6 +499,103 @@ class Scene:
 
 
 # --------------------------------------------------------------------------
+# The scene file's schema: each table's keys with their types and ranges, validated by pydantic through
+# pipeline_sim.schema (unknown keys with the nearest known name, types without coercion, finite numbers,
+# ranges, required keys). The rules between keys (far beyond near, a camera's keys by its projection, a
+# light's by its type, a primitive's parameters, degenerate views) are the parsers' below.
+
+Finite = Annotated[float, Strict(), Field(allow_inf_nan=False)]
+Positive = Annotated[float, Strict(), Field(gt=0.0, allow_inf_nan=False)]
+Radiance = number(0.0, MAX_RADIANCE)  # a light intensity or ambient term: float32 shading stays finite
+
+
+def _vector(n: int, item: Any = Finite) -> Any:
+    return Annotated[list[item], Field(min_length=n, max_length=n)]
+
+
+Vec3 = _vector(3)
+Colour = _vector(3, Radiance)
+#: A number or ``n`` numbers (a primitive's size, a scale): checked by :meth:`_Reader.number_or_numbers`.
+NumberOrNumbers = Any
+
+
+
+@dataclass
+class ImageTable:
+    __pydantic_config__ = FORBID
+    width: count(1, IMAGE_LIMITS["width"]) = schema.key("pixels")
+    height: count(1, IMAGE_LIMITS["height"]) = schema.key("pixels")
+    spp: count(1, IMAGE_LIMITS["spp"]) = schema.key("samples per pixel")
+    seed: count(0, 2**64 - 1) = schema.key("sample-pattern seed", default=0)
+
+
+@dataclass
+class LensTable:
+    __pydantic_config__ = FORBID
+    radius: Annotated[float, Strict(), Field(ge=0.0, allow_inf_nan=False)] = schema.key(
+        "aperture radius, world units (0: a pinhole)")
+    focus_distance: Positive | None = schema.key("world units along the view direction (default: eye to look_at)",
+                                           default=None)
+
+
+@dataclass
+class CameraTable:
+    __pydantic_config__ = FORBID
+    eye: Vec3 = schema.key("at shutter open")
+    look_at: Vec3 = schema.key("at shutter open")
+    near: Positive = schema.key("near plane distance")
+    far: Finite = schema.key("far plane distance, > near")
+    projection: Literal[PROJECTIONS] = schema.key("the projection", default="perspective")
+    up: Vec3 = schema.key("up direction, need not be orthogonal", default_factory=lambda: [0.0, 1.0, 0.0])
+    fov_y: Annotated[float, Strict(), Field(gt=0.0, lt=180.0, allow_inf_nan=False)] | None = schema.key(
+        "vertical field of view in degrees (perspective)", default=None)
+    frustum: _vector(4) | None = schema.key("[left, right, bottom, top]", default=None)
+    ortho_height: Positive | None = schema.key("orthographic: view volume height", default=None)
+    eye_close: Vec3 | None = schema.key("eye at shutter close", default=None)
+    look_at_close: Vec3 | None = schema.key("look_at at shutter close", default=None)
+    lens: LensTable | None = schema.key("a thin lens (perspective)", default=None)
+
+
+@dataclass
+class BackgroundTable:
+    __pydantic_config__ = FORBID
+    color: Colour = schema.key("linear RGB", default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+@dataclass
+class LightTable:
+    __pydantic_config__ = FORBID
+    type: Literal[LIGHT_TYPES] = schema.key("the light's type", default="directional")
+    direction: Vec3 | None = schema.key("directional: from the light toward the scene", default=None)
+    position: Vec3 | None = schema.key("point: its position", default=None)
+    color: Colour = schema.key("linear RGB", default_factory=lambda: [1.0, 1.0, 1.0])
+    intensity: Radiance = schema.key("its intensity", default=1.0)
+    ambient: Radiance = schema.key("the ambient term", default=0.1)
+
+
+@dataclass
+class TransformTable:
+    __pydantic_config__ = FORBID
+    translate: Vec3 | None = schema.key("translation", default=None)
+    rotate: Vec3 | None = schema.key("degrees about x, then y, then z", default=None)
+    scale: NumberOrNumbers = schema.key("a number or [sx, sy, sz], components > 0", default=None)
+
+
+@dataclass
+class ObjectTable:
+    __pydantic_config__ = FORBID
+    name: Annotated[str, Strict(), Field(min_length=1)] | None = schema.key("unique name", default=None)
+    primitive: Literal[PRIMITIVES] | None = schema.key("a built-in shape", default=None)
+    mesh: Annotated[str, Strict(), Field(min_length=1)] | None = schema.key("a mesh file, relative to the scene file",
+                                                                       default=None)
+    material: Literal[MATERIALS] = schema.key("the material", default="lambert")
+    color: Colour = schema.key("linear RGB", default_factory=lambda: list(DEFAULT_OBJECT_COLOR))
+    use_vertex_colors: Flag = schema.key("use the mesh file's vertex colours", default=False)
+    open: TransformTable | None = schema.key("transform at shutter open", default=None)
+    close: TransformTable | None = schema.key("transform at shutter close", default=None)
+
+
+# --------------------------------------------------------------------------
 # Validation helpers. `ctx` is the file name as shown to the user; `key` is
 # the dotted key path inside the file.
 
@@ -517,40 +621,15 @@ def _type_name(v: Any) -> str:
 
 
 class _Reader:
+    """The scene file's name (``ctx``) for messages, and the checks the schema leaves to code: a number
+    or ``n`` numbers (a primitive's size, a scale)."""
+
     def __init__(self, ctx: str) -> None:
         self.ctx = ctx
 
     def error(self, key: str, message: str) -> UserError:
         where = f"{self.ctx}: {key}" if key else self.ctx
         return UserError(f"{where}: {message}")
-
-    def table(self, value: Any, key: str) -> dict:
-        if not isinstance(value, dict):
-            return self._raise(key, f"expected a table, got {_type_name(value)}")
-        return value
-
-    def _raise(self, key: str, message: str) -> Any:
-        raise self.error(key, message)
-
-    def check_keys(self, tbl: Mapping[str, Any], key: str, known: set[str] | tuple[str, ...]) -> None:
-        for k in tbl:
-            if k not in known:
-                where = f"{self.ctx}: {key}" if key else self.ctx
-                raise unknown_key_error(where, _printable(k), known)
-
-    @staticmethod
-    def sub(key: str, name: str) -> str:
-        return f"{key}.{name}" if key else name
-
-    def require(self, tbl: Mapping[str, Any], key: str, name: str, why: str = "") -> Any:
-        if name not in tbl:
-            raise self.error(self.sub(key, name), f"missing required key{why}")
-        return tbl[name]
-
-    def require_table(self, tbl: Mapping[str, Any], name: str) -> dict:
-        if name not in tbl:
-            raise self.error(name, f"missing required table [{name}]")
-        return self.table(tbl[name], name)
 
     def number(self, v: Any, key: str) -> float:
         if type(v) not in (int, float):
@@ -563,60 +642,14 @@ class _Reader:
             raise self.error(key, f"expected a finite number, got {v}")
         return x
 
-    def integer(self, v: Any, key: str) -> int:
-        if type(v) is not int:
-            raise self.error(key, f"expected an integer, got {_type_name(v)}")
-        return v
-
-    def string(self, v: Any, key: str) -> str:
-        if type(v) is not str:
-            raise self.error(key, f"expected a string, got {_type_name(v)}")
-        return v
-
-    def boolean(self, v: Any, key: str) -> bool:
-        if type(v) is not bool:
-            raise self.error(key, f"expected true or false, got {_type_name(v)}")
-        return v
-
-    def numbers(self, v: Any, key: str, n: int) -> np.ndarray:
-        if not isinstance(v, list):
-            raise self.error(key, f"expected {n} numbers, got {_type_name(v)}")
-        if len(v) != n:
-            raise self.error(key, f"expected {n} numbers, got {len(v)}")
-        return np.array([self.number(x, f"{key}[{i}]") for i, x in enumerate(v)])
-
     def number_or_numbers(self, v: Any, key: str, n: int) -> np.ndarray:
         if isinstance(v, list):
-            return self.numbers(v, key, n)
+            if len(v) != n:
+                raise self.error(key, f"expected {n} numbers, got {len(v)}")
+            return np.array([self.number(x, f"{key}[{i}]") for i, x in enumerate(v)])
         if type(v) not in (int, float):
             raise self.error(key, f"expected a number or {n} numbers, got {_type_name(v)}")
         return np.full(n, self.number(v, key))
-
-    def color(self, v: Any, key: str) -> np.ndarray:
-        c = self.numbers(v, key, 3)
-        if np.any(c < 0.0):
-            raise self.error(key, f"colour components must be >= 0, got {_fmt(c)}")
-        if np.any(c > MAX_RADIANCE):
-            raise self.error(key, f"colour components must be <= {MAX_RADIANCE:g} (so that float32 shading "
-                             f"stays finite), got {_fmt(c)}")
-        return c
-
-    def radiance(self, v: Any, key: str) -> float:
-        """A light intensity or ambient term: in [0, MAX_RADIANCE]."""
-        x = self.number(v, key)
-        if x < 0.0:
-            raise self.error(key, f"must be >= 0, got {x:g}")
-        if x > MAX_RADIANCE:
-            raise self.error(key, f"must be <= {MAX_RADIANCE:g} (so that float32 shading stays finite), got {x:g}")
-        return x
-
-    def choice(self, v: Any, key: str, choices: tuple[str, ...], what: str) -> str:
-        s = self.string(v, key)
-        if s not in choices:
-            raise self.error(
-                key, f"unknown {what} '{s}'{did_you_mean(s, choices)}; expected one of: {', '.join(choices)}"
-            )
-        return s
 
 
 def _printable(text: str) -> str:
@@ -631,14 +664,6 @@ def _fmt(v: np.ndarray) -> str:
 # --------------------------------------------------------------------------
 # Primitives. Each builder returns (positions, normals, faces) with
 # counter-clockwise outward-facing triangles.
-
-
-@dataclass(frozen=True)
-class _Param:
-    kind: str  # "number" | "int" | "vec2" | "vec3"
-    default: Any
-    minimum: float  # exclusive lower bound for numbers, inclusive for ints
-    maximum: float | None = None
 
 
 _Mesh = tuple[np.ndarray, np.ndarray, np.ndarray]
@@ -734,27 +759,47 @@ def _cylinder(radius: float, height: float, sections: int) -> _Mesh:
     return positions, normals, faces
 
 
-_PRIMITIVE_PARAMS: dict[str, dict[str, _Param]] = {
-    "sphere": {
-        "radius": _Param("number", 1.0, 0.0),
-        "subdivisions": _Param("int", 3, 0, 7),
-    },
-    "box": {"size": _Param("vec3", (1.0, 1.0, 1.0), 0.0)},
-    "plane": {
-        "size": _Param("vec2", (1.0, 1.0), 0.0),
-        "subdivisions": _Param("int", 0, 0, 1023),
-    },
-    "torus": {
-        "major_radius": _Param("number", 1.0, 0.0),
-        "minor_radius": _Param("number", 0.25, 0.0),
-        "major_sections": _Param("int", 32, 3, 4096),
-        "minor_sections": _Param("int", 16, 3, 4096),
-    },
-    "cylinder": {
-        "radius": _Param("number", 0.5, 0.0),
-        "height": _Param("number", 1.0, 0.0),
-        "sections": _Param("int", 32, 3, 65536),
-    },
+@dataclass
+class SphereObject(ObjectTable):
+    radius: Positive = schema.key("radius", default=1.0)
+    subdivisions: count(0, 7) = schema.key("icosphere subdivisions: 20*4^n triangles", default=3)
+
+
+@dataclass
+class BoxObject(ObjectTable):
+    size: NumberOrNumbers = schema.key("a number or [x, y, z], > 0", default=(1.0, 1.0, 1.0))
+
+
+@dataclass
+class PlaneObject(ObjectTable):
+    size: NumberOrNumbers = schema.key("a number or [x, z], > 0", default=(1.0, 1.0))
+    subdivisions: count(0, 1023) = schema.key("n: an (n+1) x (n+1) grid of quads", default=0)
+
+
+@dataclass
+class TorusObject(ObjectTable):
+    major_radius: Positive = schema.key("ring radius", default=1.0)
+    minor_radius: Positive = schema.key("tube radius, < major_radius", default=0.25)
+    major_sections: count(3, 4096) = schema.key("sections around the ring", default=32)
+    minor_sections: count(3, 4096) = schema.key("sections around the tube", default=16)
+
+
+@dataclass
+class CylinderObject(ObjectTable):
+    radius: Positive = schema.key("radius", default=0.5)
+    height: Positive = schema.key("height", default=1.0)
+    sections: count(3, 65536) = schema.key("sections around the axis", default=32)
+
+
+#: Each primitive's object table: the object's keys and the primitive's parameters.
+_PRIMITIVE_TABLES: dict[str, type[ObjectTable]] = {
+    "sphere": SphereObject, "box": BoxObject, "plane": PlaneObject, "torus": TorusObject, "cylinder": CylinderObject,
+}
+_OBJECT_KEYS = tuple(f.name for f in dataclasses.fields(ObjectTable))
+#: Each primitive's parameter names.
+_PRIMITIVE_PARAMS: dict[str, tuple[str, ...]] = {
+    name: tuple(f.name for f in dataclasses.fields(t) if f.name not in _OBJECT_KEYS)
+    for name, t in _PRIMITIVE_TABLES.items()
 }
 
 _PRIMITIVE_BUILDERS: dict[str, Callable[..., _Mesh]] = {
@@ -765,33 +810,19 @@ _PRIMITIVE_BUILDERS: dict[str, Callable[..., _Mesh]] = {
     "cylinder": _cylinder,
 }
 
-PRIMITIVES = tuple(_PRIMITIVE_PARAMS)
-
-
-def _primitive_mesh(r: _Reader, obj: dict, key: str, primitive: str) -> _Mesh:
+def _primitive_mesh(r: _Reader, obj: ObjectTable, key: str, primitive: str) -> _Mesh:
     params: dict[str, Any] = {}
-    for name, spec in _PRIMITIVE_PARAMS[primitive].items():
-        pkey = r.sub(key, name)
-        if name not in obj:
-            params[name] = np.array(spec.default) if spec.kind.startswith("vec") else spec.default
-            continue
-        v = obj[name]
-        if spec.kind == "int":
-            x = r.integer(v, pkey)
-            if x < spec.minimum or (spec.maximum is not None and x > spec.maximum):
-                raise r.error(pkey, f"must be in [{spec.minimum:g}, {spec.maximum:g}], got {x}")
-            params[name] = x
-            continue
-        if spec.kind == "number":
-            val = np.array([r.number(v, pkey)])
-        else:
-            val = r.number_or_numbers(v, pkey, 2 if spec.kind == "vec2" else 3)
-        if np.any(val <= spec.minimum):
-            raise r.error(pkey, f"must be > {spec.minimum:g}, got {_fmt(val) if val.size > 1 else f'{val[0]:g}'}")
-        params[name] = float(val[0]) if spec.kind == "number" else val
+    for name in _PRIMITIVE_PARAMS[primitive]:
+        v = getattr(obj, name)
+        if name == "size":  # a number or one per axis
+            v = r.number_or_numbers(list(v) if isinstance(v, tuple) else v, f"{key}.{name}",
+                                    3 if primitive == "box" else 2)
+            if np.any(v <= 0.0):
+                raise r.error(f"{key}.{name}", f"must be > 0, got {_fmt(v)}")
+        params[name] = v
     if primitive == "torus" and params["minor_radius"] >= params["major_radius"]:
         raise r.error(
-            r.sub(key, "minor_radius"),
+            f"{key}.minor_radius",
             f"must be < major_radius ({params['major_radius']:g}), got {params['minor_radius']:g}",
         )
     return _PRIMITIVE_BUILDERS[primitive](**params)
@@ -1327,19 +1358,17 @@ def check_image_value(name: str, value: Any, where: str) -> int:
     return value
 
 
+def _section(r: _Reader, cls: type, data: dict, name: str, required: bool = False) -> Any:
+    """The table ``name`` of the scene document validated as ``cls`` (its defaults when absent)."""
+    if name not in data:
+        if required:
+            raise r.error(name, f"missing required table [{name}]")
+        return cls()
+    return schema.build(cls, data[name], r.ctx, (name,))
+
+
 def _parse_image(r: _Reader, data: dict) -> ImageSettings:
-    tbl = r.require_table(data, "image")
-    r.check_keys(tbl, "image", ("width", "height", "spp", "seed"))
-    values = {name: check_image_value(name, r.require(tbl, "image", name), f"{r.ctx}: image.{name}")
-              for name in IMAGE_LIMITS}
-    seed = check_image_value("seed", tbl.get("seed", 0), f"{r.ctx}: image.seed")
-    return ImageSettings(seed=seed, **values)
-
-
-_CAMERA_KEYS = (
-    "projection", "eye", "look_at", "up", "fov_y", "near", "far", "frustum",
-    "ortho_height", "eye_close", "look_at_close", "lens",
-)
+    return ImageSettings(**dataclasses.asdict(_section(r, ImageTable, data, "image", required=True)))
 
 
 def _crosses_zero(a: np.ndarray, b: np.ndarray) -> bool:
@@ -1353,16 +1382,11 @@ def _crosses_zero(a: np.ndarray, b: np.ndarray) -> bool:
 
 
 def _parse_camera(r: _Reader, data: dict) -> Camera:
-    tbl = r.require_table(data, "camera")
-    r.check_keys(tbl, "camera", _CAMERA_KEYS)
-    projection = r.choice(tbl.get("projection", "perspective"), "camera.projection", PROJECTIONS, "projection")
-    eye = r.numbers(r.require(tbl, "camera", "eye"), "camera.eye", 3)
-    look_at = r.numbers(r.require(tbl, "camera", "look_at"), "camera.look_at", 3)
-    up = r.numbers(tbl.get("up", [0.0, 1.0, 0.0]), "camera.up", 3)
-    eye_close = r.numbers(tbl["eye_close"], "camera.eye_close", 3) if "eye_close" in tbl else eye
-    look_at_close = (
-        r.numbers(tbl["look_at_close"], "camera.look_at_close", 3) if "look_at_close" in tbl else look_at
-    )
+    cam = _section(r, CameraTable, data, "camera", required=True)
+    projection = cam.projection
+    eye, look_at, up = np.array(cam.eye), np.array(cam.look_at), np.array(cam.up)
+    eye_close = np.array(cam.eye_close) if cam.eye_close is not None else eye
+    look_at_close = np.array(cam.look_at_close) if cam.look_at_close is not None else look_at
     if np.linalg.norm(up) < 1e-12:
         raise r.error("camera.up", "must not be the zero vector")
     up_unit = up / np.linalg.norm(up)
@@ -1377,16 +1401,13 @@ def _parse_camera(r: _Reader, data: dict) -> Camera:
     if _crosses_zero(np.cross(d0, up_unit), np.cross(d1, up_unit)):
         raise r.error("camera.up", f"up {_fmt(up)} becomes parallel to the view direction during the shutter")
 
-    near = r.number(r.require(tbl, "camera", "near"), "camera.near")
-    if near <= 0.0:
-        raise r.error("camera.near", f"must be > 0, got {near:g}")
-    far = r.number(r.require(tbl, "camera", "far"), "camera.far")
+    near, far = cam.near, cam.far
     if far <= near:
         raise r.error("camera.far", f"must be > near ({near:g}), got {far:g}")
 
     frustum = None
-    if "frustum" in tbl:
-        fr = r.numbers(tbl["frustum"], "camera.frustum", 4)
+    if cam.frustum is not None:
+        fr = np.array(cam.frustum)
         if not fr[0] < fr[1]:
             raise r.error("camera.frustum", f"left must be < right, got {_fmt(fr)}")
         if not fr[2] < fr[3]:
@@ -1397,27 +1418,25 @@ def _parse_camera(r: _Reader, data: dict) -> Camera:
     fov_y = 0.0
     lens = None
     if projection == "perspective":
-        if "ortho_height" in tbl:
+        if cam.ortho_height is not None:
             raise r.error("camera.ortho_height", "applies only to orthographic cameras; use fov_y or frustum")
-        if "fov_y" in tbl:
-            fov_y = r.number(tbl["fov_y"], "camera.fov_y")
-            if not 0.0 < fov_y < 180.0:
-                raise r.error("camera.fov_y", f"must be in (0, 180) degrees, got {fov_y:g}")
+        if cam.fov_y is not None:
+            fov_y = cam.fov_y
         elif frustum is None:
             raise r.error("camera.fov_y", "missing required key (or give camera.frustum)")
         if frustum is not None:
             fov_y = math.degrees(math.atan2(frustum[3], near) - math.atan2(frustum[2], near))
-        if "lens" in tbl:
-            lens = _parse_lens(r, tbl["lens"], float(np.linalg.norm(d0)))
+        if cam.lens is not None:
+            focus = cam.lens.focus_distance
+            lens = Lens(radius=cam.lens.radius,
+                        focus_distance=float(np.linalg.norm(d0)) if focus is None else focus)
     else:
-        if "fov_y" in tbl:
+        if cam.fov_y is not None:
             raise r.error("camera.fov_y", "applies only to perspective cameras; use ortho_height or frustum")
-        if "lens" in tbl:
+        if cam.lens is not None:
             raise r.error("camera.lens", "a thin lens needs a perspective camera, but projection is 'orthographic'")
-        if "ortho_height" in tbl:
-            ortho_height = r.number(tbl["ortho_height"], "camera.ortho_height")
-            if ortho_height <= 0.0:
-                raise r.error("camera.ortho_height", f"must be > 0, got {ortho_height:g}")
+        if cam.ortho_height is not None:
+            ortho_height = cam.ortho_height
     return Camera(
         projection=projection,
         eye=eye,
@@ -1434,55 +1453,33 @@ def _parse_camera(r: _Reader, data: dict) -> Camera:
     )
 
 
-def _parse_lens(r: _Reader, value: Any, default_focus: float) -> Lens:
-    tbl = r.table(value, "camera.lens")
-    r.check_keys(tbl, "camera.lens", ("radius", "focus_distance"))
-    radius = r.number(r.require(tbl, "camera.lens", "radius"), "camera.lens.radius")
-    if radius < 0.0:
-        raise r.error("camera.lens.radius", f"must be >= 0, got {radius:g}")
-    focus = r.number(tbl.get("focus_distance", default_focus), "camera.lens.focus_distance")
-    if focus <= 0.0:
-        raise r.error("camera.lens.focus_distance", f"must be > 0, got {focus:g}")
-    return Lens(radius=radius, focus_distance=focus)
-
-
 def _parse_background(r: _Reader, data: dict) -> np.ndarray:
-    if "background" not in data:
-        return np.zeros(3)
-    tbl = r.table(data["background"], "background")
-    r.check_keys(tbl, "background", ("color",))
-    return r.color(tbl.get("color", [0.0, 0.0, 0.0]), "background.color")
+    return np.array(_section(r, BackgroundTable, data, "background").color)
 
 
 def _parse_light(r: _Reader, data: dict) -> Light:
-    tbl = r.table(data.get("light", {}), "light")
-    r.check_keys(tbl, "light", ("type", "direction", "position", "color", "intensity", "ambient"))
-    kind = r.choice(tbl.get("type", "directional"), "light.type", LIGHT_TYPES, "light type")
+    light = _section(r, LightTable, data, "light")
     direction = np.zeros(3)
     position = np.zeros(3)
-    if kind == "directional":
-        if "position" in tbl:
+    if light.type == "directional":
+        if light.position is not None:
             raise r.error("light.position", "applies only to point lights; use direction")
-        direction = r.numbers(tbl.get("direction", list(DEFAULT_LIGHT_DIRECTION)), "light.direction", 3)
+        direction = np.array(light.direction if light.direction is not None else DEFAULT_LIGHT_DIRECTION)
         if not np.any(direction):
             raise r.error("light.direction", "must not be the zero vector")
         direction = np.ldexp(direction, -math.frexp(np.abs(direction).max())[1])  # exact; 1e300 and 1e-320 in range
         direction = direction / np.linalg.norm(direction)
     else:
-        if "direction" in tbl:
+        if light.direction is not None:
             raise r.error("light.direction", "applies only to directional lights; use position")
-        position = r.numbers(r.require(tbl, "light", "position", " for a point light"), "light.position", 3)
+        if light.position is None:
+            raise r.error("light.position", "missing required key for a point light")
+        position = np.array(light.position)
         if np.any(np.abs(position) > MAX_COORDINATE):
             raise r.error("light.position", f"coordinates must be within +-{MAX_COORDINATE:g} (half the float32 "
                           f"range), got {_fmt(position)}")
-    color = r.color(tbl.get("color", [1.0, 1.0, 1.0]), "light.color")
-    intensity = r.radiance(tbl.get("intensity", 1.0), "light.intensity")
-    ambient = r.radiance(tbl.get("ambient", 0.1), "light.ambient")
-    return Light(kind=kind, direction=direction, position=position, color=color, intensity=intensity, ambient=ambient)
-
-
-_OBJECT_KEYS = ("name", "primitive", "mesh", "material", "color", "use_vertex_colors", "open", "close")
-_TRANSFORM_KEYS = ("translate", "rotate", "scale")
+    return Light(kind=light.type, direction=direction, position=position, color=np.array(light.color),
+                 intensity=light.intensity, ambient=light.ambient)
 
 
 def _rotation(deg: np.ndarray) -> np.ndarray:
@@ -1502,16 +1499,17 @@ def _trs(translate: np.ndarray, rotate: np.ndarray, scale: np.ndarray) -> np.nda
     return m
 
 
-def _parse_transform(r: _Reader, value: Any, key: str, base: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    tbl = r.table(value, key)
-    r.check_keys(tbl, key, _TRANSFORM_KEYS)
+def _transform(r: _Reader, t: TransformTable | None, key: str, base: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """``base`` with the keys the transform table ``t`` gives."""
     out = dict(base)
-    if "translate" in tbl:
-        out["translate"] = r.numbers(tbl["translate"], f"{key}.translate", 3)
-    if "rotate" in tbl:
-        out["rotate"] = r.numbers(tbl["rotate"], f"{key}.rotate", 3)
-    if "scale" in tbl:
-        s = r.number_or_numbers(tbl["scale"], f"{key}.scale", 3)
+    if t is None:
+        return out
+    if t.translate is not None:
+        out["translate"] = np.array(t.translate)
+    if t.rotate is not None:
+        out["rotate"] = np.array(t.rotate)
+    if t.scale is not None:
+        s = r.number_or_numbers(t.scale, f"{key}.scale", 3)
         if np.any(s <= 0.0):
             raise r.error(f"{key}.scale", f"must be > 0 (mirroring is not supported), got {_fmt(s)}")
         out["scale"] = s
@@ -1522,58 +1520,43 @@ def _parse_object(
     r: _Reader, value: Any, index: int, base_dir: Path, mesh_cache: dict[Path, _LoadedMesh]
 ) -> tuple[SceneObject, bytes | None]:
     key = f"objects[{index}]"
-    obj = r.table(value, key)
-    primitive = None
-    if "primitive" in obj:
-        primitive = r.choice(obj["primitive"], f"{key}.primitive", PRIMITIVES, "primitive")
-    mesh_path = r.string(obj["mesh"], f"{key}.mesh") if "mesh" in obj else None
-    known = set(_OBJECT_KEYS) | (set(_PRIMITIVE_PARAMS[primitive]) if primitive else set())
-    for k in obj:
-        owners = [name for name, params in _PRIMITIVE_PARAMS.items() if k in params]
-        if k not in known and owners:
-            takes = (
-                f"{primitive} takes: {', '.join(_PRIMITIVE_PARAMS[primitive])}"
-                if primitive
-                else "a mesh object takes none"
-            )
-            raise r.error(
-                key, f"unknown key '{k}': it is a parameter of primitive {', '.join(owners)}; {takes}"
-            )
-    r.check_keys(obj, key, known)
-    if primitive is not None and mesh_path is not None:
+    primitive = value.get("primitive") if isinstance(value, dict) else None
+    table = _PRIMITIVE_TABLES.get(primitive, ObjectTable) if isinstance(primitive, str) else ObjectTable
+    if isinstance(value, dict) and (table is not ObjectTable or primitive is None):
+        for k in value:  # a parameter of another primitive: say whose, and what this one takes
+            owners = [name for name, params in _PRIMITIVE_PARAMS.items() if k in params]
+            if owners and k not in _PRIMITIVE_PARAMS.get(primitive, ()):
+                takes = (f"{primitive} takes: {', '.join(_PRIMITIVE_PARAMS[primitive])}" if primitive
+                         else "a mesh object takes none")
+                raise r.error(f"[{key}]", f"unknown key '{k}': it is a parameter of primitive {', '.join(owners)}; "
+                              f"{takes}")
+    obj = schema.build(table, value, r.ctx, ("objects", index))
+    if obj.primitive is not None and obj.mesh is not None:
         raise r.error(key, "give either 'primitive' or 'mesh', not both")
-    if primitive is None and mesh_path is None:
+    if obj.primitive is None and obj.mesh is None:
         raise r.error(
             key, f"missing required key 'primitive' ({', '.join(PRIMITIVES)}) or 'mesh' (a mesh file path)"
         )
-
-    name = r.string(obj.get("name", f"object{index}"), f"{key}.name")
-    if not name:
-        raise r.error(f"{key}.name", "must not be empty")
-    material = r.choice(obj.get("material", "lambert"), f"{key}.material", MATERIALS, "material")
-    color = r.color(obj.get("color", list(DEFAULT_OBJECT_COLOR)), f"{key}.color")
-    use_vertex_colors = r.boolean(obj.get("use_vertex_colors", False), f"{key}.use_vertex_colors")
+    name = obj.name if obj.name is not None else f"object{index}"
+    color = np.array(obj.color)
 
     identity = {"translate": np.zeros(3), "rotate": np.zeros(3), "scale": np.ones(3)}
-    t_open = _parse_transform(r, obj["open"], f"{key}.open", identity) if "open" in obj else identity
-    t_close = _parse_transform(r, obj["close"], f"{key}.close", t_open) if "close" in obj else t_open
+    t_open = _transform(r, obj.open, f"{key}.open", identity)
+    t_close = _transform(r, obj.close, f"{key}.close", t_open)
 
     data = None
     vertex_colors = None
-    if primitive is not None:
-        positions, normals, faces = _primitive_mesh(r, obj, key, primitive)
+    if obj.primitive is not None:
+        positions, normals, faces = _primitive_mesh(r, obj, key, obj.primitive)
     else:
-        assert mesh_path is not None
-        if not mesh_path:
-            raise r.error(f"{key}.mesh", "must not be empty")
-        resolved = (base_dir / mesh_path).resolve()
+        resolved = (base_dir / obj.mesh).resolve()
         if resolved not in mesh_cache:
-            mesh_cache[resolved] = _load_mesh_file(r, f"{key}.mesh", mesh_path, resolved)
+            mesh_cache[resolved] = _load_mesh_file(r, f"{key}.mesh", obj.mesh, resolved)
         loaded = mesh_cache[resolved]
         positions, normals, faces = loaded.positions, loaded.normals, loaded.faces
         vertex_colors = loaded.vertex_colors
         data = loaded.data
-    if use_vertex_colors and vertex_colors is not None:
+    if obj.use_vertex_colors and vertex_colors is not None:
         colors = np.where(np.isnan(vertex_colors), color.astype(np.float32), vertex_colors)
     else:
         colors = np.broadcast_to(color.astype(np.float32), (len(positions), 3))
@@ -1583,7 +1566,7 @@ def _parse_object(
         normals=normals,
         faces=faces,
         colors=colors,
-        material=material,
+        material=obj.material,
         transform_open=_trs(**t_open),
         transform_close=_trs(**t_close),
     )
@@ -1616,7 +1599,9 @@ def _parse(data: dict, where: str, base_dir: Path, source: bytes | None, path: P
     r = _Reader(where)
     if not isinstance(data, dict):
         raise UserError(f"{where}: expected a TOML table at the top level, got {_type_name(data)}")
-    r.check_keys(data, "", _TOP_LEVEL_KEYS)
+    for k in data:
+        if k not in _TOP_LEVEL_KEYS:
+            raise unknown_key_error(where, _printable(k), _TOP_LEVEL_KEYS)
     image = _parse_image(r, data)
     camera = _parse_camera(r, data)
     background = _parse_background(r, data)

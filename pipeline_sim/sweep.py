@@ -1,11 +1,11 @@
-"""Parameter sweeps: run a scene over a grid of settings, with accuracy metrics.
+"""Parameter sweeps: run a workload (a scene or any kind) over a grid of settings, with accuracy metrics.
 
 A sweep file is TOML. Paths in it are relative to the sweep file itself:
 
 .. code-block:: toml
 
     [sweep]
-    scene = "../scenes/default.toml"          # required
+    scene = "../scenes/default.toml"          # required: a workload file (pipeline_sim.workload)
     arch = "my_arch.toml"                     # optional, applied over the default architecture
     set = ["zcull.time_slices=4"]             # optional fixed overrides for every point (as `run --set`)
     metrics = ["rmse", "psnr", "ssim", "flip"]  # optional subset of the metrics; default all
@@ -33,12 +33,15 @@ whose values are the tuples), the last axis varying fastest. The point
 settings are applied after ``arch`` and ``set``. A sweep with no axes has one
 point (the scene as it is).
 
-Everything is checked before anything runs (:func:`load_sweep`): unknown
-tables, keys and setting paths (with the nearest known name suggested),
-empty or repeated value lists, zip groups of unequal length, a missing scene
-or architecture file, and every point's architecture (built with
-:func:`~pipeline_sim.config.load_arch`) and image settings. A problem is a
-one-line :class:`~pipeline_sim.errors.UserError` naming the file and key.
+Everything is checked before anything runs (:func:`load_sweep`): the tables
+against their schema (:class:`SweepFile`, through ``pipeline_sim.schema``:
+unknown keys with the nearest known name, types, required keys), setting
+paths, empty or repeated value lists, zip groups of unequal length, a missing
+workload or architecture file, and every point: its workload loaded
+(:func:`~pipeline_sim.workload.load_workload`) with its settings
+(``with_settings``) and checked as ``run`` checks it (its ``check``). A
+problem is a one-line :class:`~pipeline_sim.errors.UserError` naming the
+file and key.
 
 Every point has a stable id, :func:`point_id`: a short hex hash of its sorted
 setting assignments, so a resumed or extended sweep finds finished points
@@ -79,15 +82,19 @@ import tomllib
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Annotated, Any, Callable, Iterator, Literal
 
 import numpy as np
 import pandas as pd
+from pydantic import Field, Strict
 
+from pipeline_sim import schema
+from pipeline_sim.accuracy import METRICS, REFERENCE_KINDS, ReferenceSpec
 from pipeline_sim.config import literal as toml_literal
 from pipeline_sim.errors import UserError, did_you_mean, read_input_text, unknown_key_error
 from pipeline_sim.output import atomic_write_text
 from pipeline_sim.output_folder import OutputFolder, check_writable_folder, clean_leftovers
+from pipeline_sim.settings import FORBID, Text, count
 
 __all__ = [
     "SweepSpec", "load_sweep", "point_id", "run_point", "run_sweep", "SUMMARY_FIELDS", "HOST_TIMING_FIELDS",
@@ -105,8 +112,6 @@ SUMMARY_FIELDS = (
 #: Summary fields that measure the host rather than the simulation (differ between identical runs).
 HOST_TIMING_FIELDS = ("wall_time_s",)
 
-_TOP_KEYS = ("sweep", "reference", "grid", "zip")
-_SWEEP_KEYS = ("scene", "arch", "set", "metrics")
 _ARITHMETIC = ("add", "mul", "madd", "rcp", "compare")
 _ID_LENGTH = 12
 
@@ -217,12 +222,6 @@ def _read_sweep_toml(path: Path, where: str) -> dict[str, Any]:
         raise UserError(f"{where}: invalid TOML: {msg}") from None
 
 
-def _string(where: str, value: Any) -> str:
-    if not isinstance(value, str) or not value:
-        raise UserError(f"{where}: expected a non-empty string, got {value!r}")
-    return value
-
-
 def _value_list(where: str, value: Any, unique: bool = True) -> list[Any]:
     """A non-empty list of TOML scalars (distinct unless ``unique`` is false)."""
     if not isinstance(value, list):
@@ -240,59 +239,88 @@ def _value_list(where: str, value: Any, unique: bool = True) -> list[Any]:
     return list(value)
 
 
+# The sweep file's tables, validated by pydantic through pipeline_sim.schema (one-line errors naming
+# the file and key, with did-you-mean); docs/sweep-format.md's table of them is generated from these.
+_NonEmpty = Annotated[str, Strict(), Field(min_length=1)]
+_REFERENCE = ReferenceSpec()
+
+
+
+@dataclass
+class SweepTable:
+    """``[sweep]``: what every point runs."""
+
+    __pydantic_config__ = FORBID
+    scene: _NonEmpty = schema.key(
+        "the workload file every point runs (a scene or any kind), relative to the sweep file")
+    arch: _NonEmpty | None = schema.key("an architecture file applied over the default one", default=None)
+    set: list[Text] = schema.key('"section.key=value" overrides applied to every point, as `run --set`',
+                           default_factory=list)
+    metrics: Annotated[list[Literal[METRICS]], Field(min_length=1)] = schema.key(
+        "the image metrics measured (a subset of " + ", ".join(METRICS) + ")", default_factory=lambda: list(METRICS))
+
+    def check(self, where: str) -> None:
+        if len(set(self.metrics)) != len(self.metrics):
+            raise UserError(f"{where}.metrics: a metric is listed twice")
+
+
+@dataclass
+class ReferenceTable:
+    """``[reference]``: the image each point is measured against (:class:`~pipeline_sim.accuracy.ReferenceSpec`)."""
+
+    __pydantic_config__ = FORBID
+    kind: Literal[REFERENCE_KINDS] = schema.key(
+        "`pipeline`: the pipeline at `spp`, one shader execution per sample; `accumulation`: `passes` "
+        "single-sample renders averaged", default=_REFERENCE.kind)
+    spp: count(1, 1 << 16) = schema.key("pipeline: samples per pixel, a power of two", default=_REFERENCE.spp)
+    passes: count(1) = schema.key("accumulation: single-sample passes", default=_REFERENCE.passes)
+    seed: count(0, (1 << 63) - 1) = schema.key("the reference's sample seed", default=_REFERENCE.seed)
+
+
+@dataclass
+class SweepFile:
+    """A sweep file's top-level tables (the ``[grid]`` and ``[[zip]]`` keys are setting paths, checked
+    against the settings' own schemas point by point)."""
+
+    __pydantic_config__ = FORBID
+    sweep: SweepTable = schema.key('a [sweep] table with scene = "..."')
+    reference: ReferenceTable = schema.key("the reference image", default_factory=ReferenceTable)
+    grid: dict[str, Any] = schema.key("setting path -> its values; every combination", default_factory=dict)
+    zip: list[dict[str, Any]] = schema.key("groups of equal-length value lists varied together", default_factory=list)
+
+
 def load_sweep(path: str | Path) -> SweepSpec:
     """Read and validate a sweep file (format: the module docstring).
 
     Raises :class:`UserError` (one line naming the file and key) for any
     problem, including a point whose settings do not make a valid
-    architecture or image; nothing is run.
+    architecture or image, or that its workload would refuse; nothing is run.
     """
-    from pipeline_sim.accuracy import METRICS, ReferenceSpec
-    from pipeline_sim.config import apply_settings, load_arch, parse_override
-    from pipeline_sim.draw import build_draw
-    from pipeline_sim.preflight import check_point
-    from pipeline_sim.scene import check_image_value, load_scene
+    from pipeline_sim.config import load_arch, parse_override
+    from pipeline_sim.scene import check_image_value
+    from pipeline_sim.workload import load_workload
 
     p = Path(path)
     where = str(path)
     data = _read_sweep_toml(p, where)
-    for key in data:
-        if key not in _TOP_KEYS:
-            raise unknown_key_error(where, key, _TOP_KEYS)
-    if "sweep" not in data:
-        raise UserError(f"{where}: a [sweep] table with scene = \"...\" is required")
-    sw = data["sweep"]
-    if not isinstance(sw, dict):
-        raise UserError(f"{where}: sweep: expected a table [sweep]")
-    for key in sw:
-        if key not in _SWEEP_KEYS:
-            raise unknown_key_error(f"{where}: [sweep]", key, _SWEEP_KEYS)
+    if isinstance(data.get("zip"), dict):  # one group written [zip] rather than [[zip]]
+        data["zip"] = [data["zip"]]
+    spec_file = schema.build(SweepFile, data, where)
+    sw = spec_file.sweep
     base_dir = p.parent
 
-    # scene
-    if "scene" not in sw:
-        raise UserError(f"{where}: sweep.scene: missing (the scene file to render, relative to the sweep file)")
-    scene_text = _string(f"{where}: sweep.scene", sw["scene"])
-    scene_path = (base_dir / scene_text).resolve()
+    scene_path = (base_dir / sw.scene).resolve()
     if not scene_path.is_file():
-        raise UserError(f"{where}: sweep.scene: scene file '{scene_text}' not found (resolved to '{scene_path}')")
-    try:
-        loaded = load_scene(scene_path)
-        build_draw(loaded)  # the geometry's own checks, once: points change the image, not the objects
-    except UserError as exc:
-        raise UserError(f"{where}: sweep.scene: {exc}") from None
+        raise UserError(f"{where}: sweep.scene: scene file '{sw.scene}' not found (resolved to '{scene_path}')")
 
     # architecture: file, then fixed overrides
     arch_path = None
-    if "arch" in sw:
-        arch_text = _string(f"{where}: sweep.arch", sw["arch"])
-        arch_path = (base_dir / arch_text).resolve()
+    if sw.arch is not None:
+        arch_path = (base_dir / sw.arch).resolve()
         if not arch_path.is_file():
-            raise UserError(f"{where}: sweep.arch: architecture file '{arch_text}' not found "
+            raise UserError(f"{where}: sweep.arch: architecture file '{sw.arch}' not found "
                             f"(resolved to '{arch_path}')")
-    fixed = sw.get("set", [])
-    if not isinstance(fixed, list) or not all(isinstance(s, str) for s in fixed):
-        raise UserError(f"{where}: sweep.set: expected a list of \"section.key=value\" strings, got {fixed!r}")
+    fixed = sw.set
     try:
         for text in fixed:
             section, key, _ = parse_override(text)
@@ -307,43 +335,26 @@ def load_sweep(path: str | Path) -> SweepSpec:
     except UserError as exc:
         raise UserError(f"{where}: sweep.arch: {exc}") from None
     try:
-        scene, base = apply_settings(loaded, base, list(fixed))
+        loaded = load_workload(scene_path, base)
+    except UserError as exc:
+        raise UserError(f"{where}: sweep.scene: {exc}") from None
+    try:
+        workload = loaded.with_settings(list(fixed))
     except UserError as exc:
         raise UserError(f"{where}: sweep.set: {exc}") from None
 
-    # metrics
-    metrics: tuple[str, ...] = tuple(METRICS)
-    if "metrics" in sw:
-        m = sw["metrics"]
-        if not isinstance(m, list) or not m:
-            raise UserError(f"{where}: sweep.metrics: expected a non-empty list, a subset of {list(METRICS)}")
-        for name in m:
-            if name not in METRICS:
-                raise UserError(f"{where}: sweep.metrics: unknown metric {name!r}{did_you_mean(str(name), METRICS)}; "
-                                f"known: {', '.join(METRICS)}")
-        if len(set(m)) != len(m):
-            raise UserError(f"{where}: sweep.metrics: a metric is listed twice")
-        metrics = tuple(x for x in METRICS if x in m)
-
-    # reference
-    ref_table = data.get("reference", {})
-    if not isinstance(ref_table, dict):
-        raise UserError(f"{where}: reference: expected a table [reference]")
-    ref_keys = tuple(f.name for f in dataclasses.fields(ReferenceSpec))
-    for key in ref_table:
-        if key not in ref_keys:
-            raise unknown_key_error(f"{where}: [reference]", key, ref_keys)
+    metrics = tuple(x for x in METRICS if x in sw.metrics)
     try:
-        reference = ReferenceSpec(**ref_table)
+        reference = ReferenceSpec(**dataclasses.asdict(spec_file.reference))
     except UserError as exc:
         raise UserError(f"{where}: [reference]: {exc}") from None
 
     # axes
     axes: list[tuple[tuple[str, ...], list[tuple[Any, ...]]]] = []
     owner: dict[str, str] = {}
-    # an architecture value wrong on its own (type, range); a cross-key rule (cache_entries a
+    # a setting's value wrong on its own (type, range); a cross-key rule (cache_entries a
     # multiple of cache_ways) is judged per point below, where other keys may make it right
-    alone_errors: dict[tuple[str, str], str] = {}
+    alone_errors: dict[tuple[str, str], tuple[str, str]] = {}
 
     def check_values(table: str, key: str, values: list[Any]) -> None:
         loc = f"{where}: {table} {key}"
@@ -356,26 +367,18 @@ def load_sweep(path: str | Path) -> SweepSpec:
                 check_image_value(name, v, f"{loc} = {toml_literal(v)}")
                 continue
             try:
-                apply_settings(scene, base, [f"{key}={toml_literal(v)}"])
+                workload.with_settings([f"{key}={toml_literal(v)}"])
             except UserError as exc:
                 alone_errors[(key, json.dumps(v))] = (table, str(exc))
 
-    grid = data.get("grid", {})
-    if not isinstance(grid, dict):
-        raise UserError(f"{where}: grid: expected a table [grid]")
-    for key, value in _flatten(grid):
+    for key, value in _flatten(spec_file.grid):
         loc = f"{where}: [grid] {key}"
         _check_setting_path(loc, key)
         values = _value_list(loc, value)
         check_values("[grid]", key, values)
         axes.append(((key,), [(v,) for v in values]))
 
-    groups = data.get("zip", [])
-    if isinstance(groups, dict):
-        groups = [groups]
-    if not isinstance(groups, list) or not all(isinstance(g, dict) for g in groups):
-        raise UserError(f"{where}: zip: expected [[zip]] tables")
-    for i, group in enumerate(groups, 1):
+    for i, group in enumerate(spec_file.zip, 1):
         table = f"[[zip]] #{i}"
         gloc = f"{where}: {table}"
         items = list(_flatten(group))
@@ -398,33 +401,37 @@ def load_sweep(path: str | Path) -> SweepSpec:
             raise UserError(f"{gloc}: a combination of values is listed twice")
         axes.append((tuple(keys), tuples))
 
-    # points: every point's settings applied now, exactly as run_point applies them, and
-    # its samples and memory checked as `run` checks them
+    # points: every point's workload built now, exactly as run_point builds it, and checked as `run`
+    # checks it (its samples, its memory, its geometry)
     points: list[dict[str, Any]] = []
-    setups: dict[tuple[str, ...], Any] = {}
+    images: dict[str, Any] = {}
     reference_spp = reference.spp if reference.kind == "pipeline" else 1
     for combo in itertools.product(*(values for _, values in axes)):
         params: dict[str, Any] = {}
         for (keys, _), values in zip(axes, combo):
             params.update(zip(keys, values))
         image, overrides = _split_params(params)
-        if tuple(overrides) not in setups:
-            try:
-                setups[tuple(overrides)] = apply_settings(loaded, load_arch(arch_path), list(fixed) + overrides)
-            except UserError as exc:
-                for k, v in params.items():  # blame one key when it alone gives this error
-                    table, msg = alone_errors.get((k, json.dumps(v)), ("", ""))
-                    if msg == str(exc):
-                        raise UserError(f"{where}: {table} {k} = {toml_literal(v)}: "
-                                        f"{msg.removeprefix('--set: ')}") from None
-                raise UserError(f"{where}: point {_describe(params)}: {exc}") from None
-        point_scene, point_arch = setups[tuple(overrides)]
-        check_point(point_scene.replace(image=dataclasses.replace(scene.image, **image)), point_arch,
-                    f"{where}: point {_describe(params)}", reference_spp=reference_spp)
+        at = f"{where}: point {_describe(params)}"
+        image_key = json.dumps(image, sort_keys=True)
+        try:
+            if image_key not in images:
+                images[image_key] = load_workload(scene_path, base, image) if image else loaded
+            point = images[image_key].with_settings(list(fixed) + overrides)
+        except UserError as exc:
+            for k, v in params.items():  # blame one key when it alone gives this error
+                table, msg = alone_errors.get((k, json.dumps(v)), ("", ""))
+                if msg == str(exc):
+                    raise UserError(f"{where}: {table} {k} = {toml_literal(v)}: "
+                                    f"{msg.removeprefix('--set: ')}") from None
+            raise UserError(f"{at}: {exc}") from None
+        try:
+            point.check(reference_spp=reference_spp if point.reference_scene() is not None else None)
+        except UserError as exc:  # the workload names its file: the point names it here
+            raise UserError(f"{at}: {str(exc).removeprefix(f'{point.path}: ')}") from None
         points.append(params)
 
     return SweepSpec(
-        path=p.resolve(), scene=scene_path, scene_digest=scene.digest, arch=arch_path,
+        path=p.resolve(), scene=scene_path, scene_digest=loaded.digest, arch=arch_path,
         arch_digest=None if arch_path is None else _file_digest(arch_path), set=list(fixed),
         metrics=metrics, reference=reference, axes=axes, points=points,
     )

@@ -32,6 +32,7 @@ from typing import Any, Callable, ClassVar
 import numpy as np
 import pandas as pd
 
+from pipeline_sim import schema
 from pipeline_sim.config import ArchConfig
 from pipeline_sim.errors import UserError, did_you_mean, read_input_text
 
@@ -95,6 +96,12 @@ class Workload:
     """
 
     kind: ClassVar[str] = ""
+    #: The kind's file schema, or None: a dataclass whose fields carry their types and ranges
+    #: (``pipeline_sim.settings``) and a ``doc`` line in their metadata, under the config
+    #: ``pipeline_sim.settings.FORBID``. :func:`read_workload` validates the file (less its ``kind``)
+    #: against it through ``pipeline_sim.schema`` and hands :meth:`load` the instance as ``data``;
+    #: docs/workloads.md lists every kind's keys from it (``pipeline_sim.docgen``).
+    file_schema: ClassVar[type | None] = None
 
     def __init__(self, path: Path, arch: ArchConfig) -> None:
         self.path = Path(path)
@@ -104,10 +111,10 @@ class Workload:
         self.states: list[Any] = []  # every pass run, as run (RenderPass), for run.json
 
     @classmethod
-    def load(cls, path: Path, data: dict[str, Any], arch: ArchConfig, image: dict[str, int]) -> "Workload":
-        """Build the workload of file ``path`` (``data``: its parsed TOML) on
-        ``arch``. ``image``: image settings a command overrides (keys of :data:`IMAGE_KEYS`, already
-        checked); a kind that has no such setting refuses them with one line."""
+    def load(cls, path: Path, data: Any, arch: ArchConfig, image: dict[str, int]) -> "Workload":
+        """Build the workload of file ``path`` (``data``: its parsed TOML, or the :attr:`file_schema`
+        instance validated from it) on ``arch``. ``image``: image settings a command overrides (keys of
+        :data:`IMAGE_KEYS`, already checked); a kind that has no such setting refuses them with one line."""
         raise NotImplementedError
 
     def check(self, variants: list["Workload"] | None = None, *, reference_spp: int | None = None) -> str:
@@ -327,8 +334,10 @@ def kind_of(name: str, where: str) -> type[Workload]:
 
 
 def read_workload(path: str | Path) -> tuple[type[Workload], dict[str, Any]]:
-    """The kind a workload file names and its parsed TOML. A file that cannot be read or is not
-    TOML is reported as the scene reader reports it (the kind of a file without ``kind``)."""
+    """The kind a workload file names and its parsed TOML, or, for a kind with a
+    :attr:`Workload.file_schema`, the file (less its ``kind``) validated against it (one line naming
+    the file and key, with the nearest known name). A file that cannot be read or is not TOML is
+    reported as the scene reader reports it (the kind of a file without ``kind``)."""
     from pipeline_sim.scene import load_scene
 
     p = Path(path)
@@ -342,12 +351,15 @@ def read_workload(path: str | Path) -> tuple[type[Workload], dict[str, Any]]:
     name = data.get("kind", DEFAULT_KIND)
     if not isinstance(name, str):
         raise UserError(f"{where}: kind: expected a string naming the workload kind, got {type(name).__name__}")
-    return kind_of(name, where), data
+    cls = kind_of(name, where)
+    if cls.file_schema is not None:
+        return cls, schema.build(cls.file_schema, {k: v for k, v in data.items() if k != "kind"}, where)
+    return cls, data
 
 
 def load_workload(path: str | Path, arch: ArchConfig, image: dict[str, int] | None = None) -> Workload:
     """Load the workload file ``path`` on ``arch`` (``image``: image settings overridden, checked by
-    the caller)."""
+    the caller), its file read and validated by :func:`read_workload`."""
     cls, data = read_workload(path)
     return cls.load(Path(path), data, arch, dict(image or {}))
 

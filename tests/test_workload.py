@@ -91,7 +91,8 @@ def test_unknown_kind_is_one_line_with_the_nearest_name(tmp_path, negative, caps
 def test_discovery_finds_the_application_folders(negative):
     assert "negative" in W.kinds() and "scene" in W.kinds()
     cls, data = W.read_workload(negative)
-    assert cls.kind == "negative" and cls.__module__ == "workloads.apps.negative" and data["kind"] == "negative"
+    assert cls.kind == "negative" and cls.__module__ == "workloads.apps.negative"
+    assert data == cls.file_schema(scene="../../small.toml")   # the file validated against the kind's schema
 
 
 def test_two_pass_workload_against_numpy(negative, tmp_path, capsys):
@@ -186,3 +187,55 @@ def test_report_reads_a_run_folder(negative, tmp_path, capsys):
     mine = tmp_path / "mine.html"
     mine.write_text("my notes")
     assert main(["report", str(out), "-o", str(mine)]) == 2 and mine.read_text() == "my notes"
+
+
+def test_a_sweep_runs_any_kind(negative, tmp_path):
+    """A sweep over the two-pass kind: every point loaded and checked as its workload (a spp the
+    workload's check refuses names the point), then run end to end; each point's image is the
+    negative of its own first pass (numpy), with no single image to measure against a reference."""
+    from pipeline_sim.sweep import load_sweep, run_sweep
+
+    sweep = tmp_path / "s.toml"
+    sweep.write_text(f'[sweep]\nscene = "{negative.relative_to(tmp_path)}"\nmetrics = ["rmse"]\n'
+                     '[grid]\n"image.spp" = [1, 4]\n"tile_test.algorithm" = ["bbox", "hierarchical"]\n')
+    spec = load_sweep(sweep)
+    assert len(spec.points) == 4 and spec.scene == negative.resolve()
+    frame = run_sweep(spec, tmp_path / "out", executor="serial", progress=False)
+    assert (frame.status == "ok").all(), frame.error.tolist()
+    assert frame.rmse.isna().all()
+    for pid in frame.point_id:
+        point = tmp_path / "out" / "points" / pid
+        first = np.load(point / "passes" / "scene" / "image.npy")
+        np.testing.assert_allclose(np.load(point / "image.npy")[..., :3], 1.0 - first[..., :3], atol=1e-6)
+        assert json.loads((point / "run.json").read_text())["kind"] == "negative"
+    sweep.write_text(sweep.read_text().replace("[1, 4]", "[1, 3]"))
+    with pytest.raises(UserError, match=r"s.toml: point image.spp=3, tile_test.algorithm=\"bbox\": "
+                                        r"spp = 3 must be a power of two"):
+        load_sweep(sweep)
+
+
+@pytest.mark.parametrize("text, expected", [
+    ('kind = "negative"\nscen = "x.toml"\n', "negative.toml: unknown key 'scen' (did you mean 'scene'?); "
+                                             "known keys: scene"),
+    ('kind = "negative"\nscene = 3\n', "negative.toml: scene: expected a string, got 3"),
+    ('kind = "negative"\n', "negative.toml: scene: missing required key (the scene file whose negative is drawn"),
+])
+def test_a_kind_s_file_schema_validates_its_file(negative, text, expected, capsys):
+    """The example kind declares its file's keys (file_schema): load_workload refuses a file that does
+    not match them in one line naming the file and the key, before the kind's load runs."""
+    negative.write_text(text)
+    with pytest.raises(UserError) as err:
+        W.load_workload(negative, load_arch())
+    assert str(err.value).startswith(str(negative)) and expected in str(err.value), str(err.value)
+    assert main(["check", str(negative)]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_the_docs_list_each_kind_s_file_keys(negative):
+    """docs/workloads.md's generated list of kinds gives each registered kind's keys from its schema."""
+    from pipeline_sim.docgen import workload_kinds
+
+    W.kinds()  # discovers the example
+    text = workload_kinds()
+    assert "### `scene`" in text and "### `negative`" in text
+    assert "| `scene` | string | required | the scene file whose negative is drawn, relative to this file |" in text
