@@ -399,7 +399,7 @@ def test_every_setting_declares_what_it_can_change():
     effects = setting_effects()
     listed = _all_paths()
     assert set(effects) == set(listed) and set(effects.values()) <= set(EFFECTS)
-    assert len([p for p in listed if p.startswith("pass.")]) == 15 and "simulation.region_samples" in listed
+    assert len([p for p in listed if p.startswith("pass.")]) == 18 and "simulation.region_samples" in listed
     # every setting's alternative value is valid on its own
     for path, value in listed.items():
         pass_settings([_override(path, _alternative(path, value))])
@@ -471,8 +471,11 @@ def test_every_numeric_setting_is_bounded_so_the_cost_model_stays_finite(value):
             continue
         if isinstance(default, int) and value in ("1e-308", "1e308", "nan"):
             continue   # not an integer: refused for its type already
-        if ".clip." in path and value in ("1e-308", "-1"):
-            continue   # a clip plane may sit anywhere in [0, 1] or [-1, 1]
+        # a time (a clip plane's, the shading view's) may sit anywhere in [0, 1], a lens coordinate in [-1, 1]
+        time = ".clip.t_" in path or path == "pass.shading_t"
+        lens = any(k in path for k in (".clip.u_", ".clip.v_", "pass.shading_u", "pass.shading_v"))
+        if value == "1e-308" and (time or lens) or value == "-1" and lens:
+            continue
         with pytest.raises(UserError) as info:
             pass_settings([f"{path}={value}"])
         assert "\n" not in str(info.value) and path.rsplit(".", 1)[1] in str(info.value)
