@@ -57,14 +57,14 @@ class Settings:
     height: count(8, 4096) = key("image height, pixels", default=96)
     spp: count(1, 256) = key("samples per pixel of the passes (the sample-based queries' density)", default=16)
     seed: count(0) = key("seed of the sample pattern and of the proxies' placement", default=0)
-    proxies: count(1, 1000) = key("number of proxies (boxes) behind the occluder", default=24)
-    motion: number(0.0, 10.0) = key("largest distance a proxy moves over the shutter, world units", default=0.8)
+    proxies: count(1, 1000) = key("number of proxies (boxes) behind the occluder", default=32)
+    motion: number(0.0, 10.0) = key("largest distance a proxy moves over the shutter, world units", default=0.5)
     occluder_motion: number(0.0, 10.0) = key("distance the occluder moves along x over the shutter, world units",
-                                             default=0.4)
+                                             default=1.5)
     follow: number(0.0, 1.0) = key("share of the occluder's motion the proxies follow (matched on screen), so that "
                                    "hidden ones sweep past where the occluder stands at any one time", default=1.0)
-    lens_radius: number(0.0, 1.0) = key("thin-lens radius, world units (0: pinhole)", default=0.05)
-    focus_distance: number(1.0, 40.0) = key("distance of the plane in focus, world units", default=6.0)
+    lens_radius: number(0.0, 1.0) = key("thin-lens radius, world units (0: pinhole)", default=0.1)
+    focus_distance: number(1.0, 40.0) = key("distance of the plane in focus, world units", default=10.0)
     tile_sizes: Sizes = key("tile sizes of the occlusion-rate table (powers of two)",
                             default_factory=lambda: [4, 8, 16])
     time_slices: Boxes = key("z-cull time slices of the occlusion-rate table", default_factory=lambda: [1, 4, 8])
