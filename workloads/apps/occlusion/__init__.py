@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 from pydantic import Field
 
-from pipeline_sim.config import apply_overrides
+from pipeline_sim.config import ArchConfig, apply_overrides
 from pipeline_sim.output import finite_or_none
 from pipeline_sim.schema import key
 from pipeline_sim.settings import FORBID, count, number
@@ -138,7 +138,8 @@ class Occlusion(Workload):
         swept = [(ts, nt, nl) for ts in s.tile_sizes for nt in s.time_slices for nl in s.lens_boxes]
         return [own] + [c for c in swept if c != own]
 
-    def arch_for(self, config: tuple[int, int, int]):
+    def arch_for(self, config: tuple[int, int, int]) -> ArchConfig:
+        """The architecture with tile size, time slices and lens boxes ``config`` and z-cull on."""
         ts, nt, nl = config
         return apply_overrides(self.arch, [f"tile_traverser.tile_size={ts}", f"zcull.time_slices={nt}",
                                            f"zcull.lens_boxes={nl}", "zcull.enabled=true"])
@@ -190,10 +191,10 @@ class Occlusion(Workload):
             answers = [r.interval_queries[i + 1] for i in range(s.proxies)]
             per_config[(ts, nt, nl)] = answers
             occluded = [not a["visible"] for a in answers]
+            caught = sum(o and h for o, h in zip(occluded, hidden))
             rows.append({"tile_size": ts, "time_slices": nt, "lens_boxes": nl, "boxes_per_tile": nt * nl * nl,
-                         "truly_occluded": sum(hidden), "answered_occluded": sum(o and h for o, h in zip(occluded, hidden)),
-                         "occlusion_rate": finite_or_none(sum(o and h for o, h in zip(occluded, hidden)) / sum(hidden)
-                                                          if any(hidden) else None),
+                         "truly_occluded": sum(hidden), "answered_occluded": caught,
+                         "occlusion_rate": finite_or_none(caught / sum(hidden) if any(hidden) else None),
                          "wrongly_occluded": sum(o and not h for o, h in zip(occluded, hidden)),
                          "mean_tiles": float(np.mean([a["tiles"] for a in answers])),
                          "mean_box_comparisons": float(np.mean([a["box_comparisons"] for a in answers])),
