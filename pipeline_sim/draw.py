@@ -22,6 +22,10 @@ from pipeline_sim.pass_state import ClipPlanes
 from pipeline_sim.scene import MAX_COORDINATE
 
 MATERIAL_IDS = {"flat": 0, "lambert": 1}
+#: What a draw's occlusion query counts (docs/passes.md): "samples", its samples passing the depth test
+#: (the draw renders as usual); "interval", whether z-cull's boxes can hide it (Nilsson12 §3: the draw's
+#: tile records are compared with the boxes and render nothing).
+QUERY_MODES = ("samples", "interval")
 
 
 @dataclass
@@ -35,7 +39,8 @@ class Draw:
     ``object_id`` (N,) int32. ``depth_w`` = (c1, c0) when every vertex's
     depth is z/w = c1 + c0 / w (a perspective projection, c0 < 0): it lets
     the tile test turn bounds on w into bounds on depth (Nilsson12 App. A).
-    ``clip``: the draw's own user clip planes (None: its pass state's).
+    ``clip``: the draw's own user clip planes (None: its pass state's); ``query``: its occlusion
+    query, one of ``QUERY_MODES``.
     """
 
     q: np.ndarray
@@ -51,6 +56,7 @@ class Draw:
     height: int
     depth_w: tuple[float, float] | None = None
     clip: ClipPlanes | None = None
+    query: str = "samples"
 
     @property
     def n(self) -> int:

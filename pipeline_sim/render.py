@@ -24,7 +24,7 @@ import pandas as pd
 
 from pipeline_sim.config import ArchConfig
 from pipeline_sim.counters import CounterSet, counters_frame
-from pipeline_sim.draw import Draw, build_draw, merge_draws
+from pipeline_sim.draw import QUERY_MODES, Draw, build_draw, merge_draws
 from pipeline_sim.errors import UserError
 from pipeline_sim.pass_state import PassState
 from pipeline_sim.pipeline import Stage, TimingResult, chunks, count_records, cycles_for, run_in_order, simulate
@@ -117,6 +117,8 @@ class PassResult:
     sample_data: dict[str, np.ndarray] = field(default_factory=dict)  # per target resolved "none": (H, W, spp, C)
     append: AppendResult | None = None
     queries: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # per draw: samples passing depth
+    # per draw asking an interval query (Draw.query): its answer and work (units.zcull.ZCull.query_answer)
+    interval_queries: dict[int, dict[str, bool | int]] = field(default_factory=dict)
 
     def counter(self, unit: str, name: str) -> int:
         c = self.counters
@@ -193,6 +195,13 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
                   motion or not spec, lens or not spec)
     if conservative:
         zcull.active = False
+    interval = [i for i, d in enumerate(draws) if d.query != "samples"]
+    for i in interval:
+        if draws[i].query not in QUERY_MODES:
+            raise UserError(f"{where}: draw {i}: query '{draws[i].query}' is not one of {', '.join(QUERY_MODES)}")
+        if not zcull.active:
+            raise UserError(f"{where}: draw {i} asks an interval query, which needs z-cull: zcull.enabled, "
+                            "depth test less or lequal, standard mode")
     tester = SampleTester(arch.sample_tester, setup.table, None, ts, state.backface_culling, spec)
     shading = Shading(arch.shading, state.shading_mode, state.shading_rate, draw, setup.table, None, p.shader,
                       p.params, shader_textures, conservative, sum(o.channels for o in p.outputs), append,
@@ -267,7 +276,8 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         return ([out] if len(out["tri"]) else []), cycles_for(n_in, cfg.throughput, cfg.instances)
 
     def step_zcull(tiles):
-        out, ops, ev = zcull.run(tiles)
+        d = int(tri_draw[tiles["tri"][0]]) if interval and len(tiles["tri"]) else -1
+        out, ops, ev = zcull.run(tiles, d if d in interval else None)
         c = cs["zcull"]
         n_in = len(tiles["tri"])
         c.add_ops(ops), c.add_events(ev), count_records(c, n_in, len(out["tri"]))
@@ -394,6 +404,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         dimensions={"motion": motion, "lens": lens}, units_used=[s.name for s in stages],
         depth=depth, samples=first if plan.count == 1 else None, regions=plan, region_samples_made=samples.made,
         images=rop.images, sample_data=rop.sample_data(), append=appended, queries=rop.queries,
+        interval_queries={i: zcull.query_answer(i) for i in interval},
     )
 
 

@@ -20,6 +20,7 @@ import pipeline_sim.render as render
 import units.rop as rop_mod
 import units.zcull as zc
 from pipeline_sim.config import RopConfig, load_arch, pass_settings
+from pipeline_sim.definitions import N_OPS, OP_CMP
 from pipeline_sim.pass_state import PassState
 from pipeline_sim.draw import draw_from_clip
 from pipeline_sim.regions import RegionPlan, RegionSamples
@@ -321,3 +322,53 @@ def test_refresh_rescans_a_new_depth_buffer():
     np.testing.assert_array_equal(zcull.zmax[0], expect[0])
     np.testing.assert_array_equal(zcull.zmax[1], brute_zmax(samples, first, ts, zcull.nt, zcull.nl)[1])
     assert work[zc.RF_TILES] == 2 + 1
+
+
+@pytest.mark.parametrize("func", [zc.CULL_LESS, zc.CULL_LEQUAL])
+@pytest.mark.parametrize("seed", range(4))
+def test_interval_query_answer_and_work_against_a_loop_over_boxes(func, seed):
+    """The interval query over random records and boxes against a plain loop: the answer is visible iff some
+    record's z^lo is in front of (LESS) or on (LEQUAL) the zmax of a box its (t^, u^, v^) touch (the boxes
+    found by each one's index range, t in [0, 1], u and v in [-1, 1]); the records and comparisons counted are
+    those up to and including the first such box, in record order and box order (t, then u, then v), all of
+    them when there is none; a second batch after the answer is not looked at."""
+    rng = np.random.default_rng(seed)
+    nt, nl, tiles_x, n = 4, 2, 3, 40
+    zmax = rng.choice([0.3, 0.5, 0.7], (6, nt * nl * nl)).astype(np.float32)
+    tx, ty = rng.integers(0, 3, n), rng.integers(0, 2, n)
+    t = np.sort(rng.uniform(0, 1, (n, 2)), axis=1)
+    u, v = (np.sort(rng.uniform(-1, 1, (n, 2)), axis=1) for _ in range(2))
+    # behind every box (seed 0), on the farthest boxes (1: visible only for LEQUAL), one record in front (2, 3)
+    z_lo = np.full(n, 0.7 if seed == 1 else 0.75, np.float32)
+    if seed >= 2:
+        z_lo[10 + 5 * seed] = 0.2
+    want, tiles, boxes = False, 0, 0
+    for i in range(n):
+        tiles += 1
+        for it in range(nt):
+            for iu in range(nl):
+                for iv in range(nl):
+                    if not (it / nt <= t[i, 1] and t[i, 0] < (it + 1) / nt and -1 + 2 * iu / nl <= u[i, 1]
+                            and u[i, 0] < -1 + 2 * (iu + 1) / nl and -1 + 2 * iv / nl <= v[i, 1]
+                            and v[i, 0] < -1 + 2 * (iv + 1) / nl):
+                        continue
+                    boxes += 1
+                    zm = zmax[ty[i] * tiles_x + tx[i], (it * nl + iu) * nl + iv]
+                    if z_lo[i] < zm or (func == zc.CULL_LEQUAL and z_lo[i] == zm):
+                        want = True
+                        break
+                if want:
+                    break
+            if want:
+                break
+        if want:
+            break
+    answer = np.zeros(len(zc.QUERY_FIELDS), np.int64)
+    ops = np.zeros(N_OPS, np.int64)
+    args = (tx, ty, t[:, 0], t[:, 1], u[:, 0], u[:, 1], v[:, 0], v[:, 1], z_lo, tiles_x, nt, nl, zmax, func, answer,
+            ops)
+    zc.interval_query_kernel(*args)
+    zc.interval_query_kernel(*args)  # a second batch of the same draw: nothing more once visible
+    assert answer.tolist() == [int(want), tiles * (1 if want else 2), boxes * (1 if want else 2)]
+    assert ops[OP_CMP] == answer[zc.Q_BOXES]
+    assert want == (seed >= 2 or (seed == 1 and func == zc.CULL_LEQUAL))

@@ -11,6 +11,11 @@ it. The ROP refreshes a tile's boxes from the depth buffer after writing it
 to the ROP); a stale box only makes the test looser, never wrong. Which
 refreshes a test sees depends on how far the ROP has got by then, so what
 z-cull culls can move with the timing (``TIMING_DEPENDENT``).
+
+It also answers interval-based occlusion queries (Nilsson12 §3, docs/passes.md): the records of a
+draw that asks one (``Draw.query = "interval"``) are compared with the boxes and go no further; the
+query answers "visible" at the first box whose zmax its z^lo does not lie behind, and stops
+comparing there (``interval_query_kernel``).
 """
 
 from __future__ import annotations
@@ -40,6 +45,10 @@ RF_TILES, RF_SCANS, RF_READ, RF_CHECKS = range(len(REFRESH_WORK))
 
 # depth functions for which zmax culling is valid
 CULL_LESS, CULL_LEQUAL, CULL_NONE = 0, 1, 2
+
+# an interval query's answer and the work until it: tile records compared, box comparisons
+QUERY_FIELDS = ("visible", "tiles", "box_comparisons")
+Q_VISIBLE, Q_TILES, Q_BOXES = range(len(QUERY_FIELDS))
 
 
 @nb.njit(cache=True, inline="always")
@@ -92,6 +101,35 @@ def zcull_kernel(tri, tx, ty, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, ti
             events[EV_CULLED] += 1
         elif front:
             events[EV_NOREAD] += 1
+
+
+@nb.njit(cache=True)
+def interval_query_kernel(tx, ty, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, tiles_x, nt, nl, zmax, func, answer,
+                          ops):
+    """Interval-based occlusion query of one draw's tile records, in order (Nilsson12 §3): the records'
+    (t^, u^, v^) select the boxes they touch and z^lo is compared with each box's zmax. A sample of the
+    draw can pass the depth test (``func``: LESS or LEQUAL) only where z^lo lies in front of (LESS) or
+    on (LEQUAL) the far depth of its box, so the first such comparison answers "visible" and ends the
+    query; records after it are not looked at. ``answer`` (laid out as ``QUERY_FIELDS``) carries the
+    answer and the records and comparisons spent until it, across the draw's batches."""
+    for i in range(tx.shape[0]):
+        if answer[Q_VISIBLE]:
+            return
+        answer[Q_TILES] += 1
+        ops[OP_MUL] += 6
+        tile = ty[i] * tiles_x + tx[i]
+        t0, t1 = _box_range(t_lo[i], t_hi[i], nt, 0.0, 1.0)
+        a0, a1 = _box_range(u_lo[i], u_hi[i], nl, 1.0, 0.5)
+        b0, b1 = _box_range(v_lo[i], v_hi[i], nl, 1.0, 0.5)
+        for it in range(t0, t1 + 1):
+            for iu in range(a0, a1 + 1):
+                for iv in range(b0, b1 + 1):
+                    zm = zmax[tile, (it * nl + iu) * nl + iv]
+                    answer[Q_BOXES] += 1
+                    ops[OP_CMP] += 1
+                    if z_lo[i] < zm or (func == CULL_LEQUAL and z_lo[i] == zm):
+                        answer[Q_VISIBLE] = 1
+                        return
 
 
 @nb.njit(cache=True, inline="always")
@@ -218,11 +256,24 @@ class ZCull:
         self._buffer = None
         self.func = {"less": CULL_LESS, "lequal": CULL_LEQUAL}.get(depth_func, CULL_NONE)
         self.active = bool(config.enabled) and self.func != CULL_NONE
+        # per draw asking an interval query: its answer and work, laid out as ``QUERY_FIELDS``
+        self.queries: dict[int, np.ndarray] = {}
 
-    def run(self, tiles: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+    def run(self, tiles: dict[str, np.ndarray], query: int | None = None
+            ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+        """Cull a batch of tile records; or, with ``query`` (the draw, asking an interval query, whose
+        records these are), answer its query from them and pass none on."""
         n = len(tiles["tri"])
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
+        if query is not None:
+            answer = self.queries.setdefault(query, np.zeros(len(QUERY_FIELDS), np.int64))
+            boxes = answer[Q_BOXES]
+            interval_query_kernel(tiles["tx"], tiles["ty"], tiles["t_lo"], tiles["t_hi"], tiles["u_lo"],
+                                  tiles["u_hi"], tiles["v_lo"], tiles["v_hi"], tiles["z_lo"], self.tiles_x, self.nt,
+                                  self.nl, self.zmax, self.func, answer, ops)
+            events[EV_LOOKUPS] += answer[Q_BOXES] - boxes
+            return {name: arr[:0] for name, arr in tiles.items()}, ops, events
         keep = np.ones(n, np.bool_)
         noread = np.zeros(n, np.bool_)
         if self.active:
@@ -237,6 +288,13 @@ class ZCull:
             out = {name: arr[keep] for name, arr in tiles.items()}
             out["noread"] = noread[keep]  # depth reads this tile's samples can skip
         return out, ops, events
+
+    def query_answer(self, draw: int) -> dict[str, bool | int]:
+        """Draw ``draw``'s interval query: ``visible`` (False: every record it sent lies behind the boxes
+        it touches, or it sent none), and the ``tiles`` (records) and ``box_comparisons`` spent until it."""
+        answer = self.queries.get(draw, np.zeros(len(QUERY_FIELDS), np.int64))
+        return {"visible": bool(answer[Q_VISIBLE]), "tiles": int(answer[Q_TILES]),
+                "box_comparisons": int(answer[Q_BOXES])}
 
     def refresh(self, pix: np.ndarray, sidx: np.ndarray, prior: np.ndarray, samples, depth: np.ndarray
                 ) -> np.ndarray:
