@@ -1,0 +1,357 @@
+"""Continuous collision detection with conservative time-only rasterization (Nilsson12 §3).
+
+Objects (meshes given inline, or generated icospheres and rounded boxes) move between shutter open
+(t=0) and close (t=1), each vertex along a straight line from its place at t=0 to its place at t=1
+(a rigid motion is given by its two end poses; between them the vertices are interpolated linearly,
+the motion the pipeline rasterizes). For each pair of objects whose swept bounding boxes meet, up to
+three orthographic passes look along x, then y, then z, in conservative mode (1x1 tiles, one shader
+call per (triangle, pixel), Nilsson12 §2) with time as the only extra dimension. The viewport of a
+pass encloses both objects' swept volumes, at ``resolution`` x ``resolution`` pixels. The
+``interval_shader`` writes each (triangle, pixel)'s tz-box (t_lo, z_lo, t_hi, z_hi) from the tile
+test's t^ and z^; one target per object keeps per pixel the union of its triangles' boxes (MIN on
+the lower bounds, MAX on the upper, every fragment written, restricted to the object's draw).
+
+A pair leaves the potentially colliding set (PCS) of a method at the first view with no pixel where
+both objects' boxes overlap:
+
+* ``tz_union``: in t and in z (Nilsson12 §3, Fig. 5 left);
+* ``depth_only``: in z, whatever the times (what a depth-only test such as CULLIDE can see).
+
+Each method stops at its own first separating view; its passes, shaded pixels and simulated cycles
+are the ones it needed (the two share the passes they both needed).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+from dataclasses import dataclass
+from typing import Annotated, Any, Literal
+
+import numpy as np
+import pandas as pd
+from pydantic import Field, Strict
+
+from pipeline_sim.errors import UserError
+from pipeline_sim.schema import key
+from pipeline_sim.settings import FORBID, Text, count
+from pipeline_sim.workload import Workload, WorkloadResult
+
+Finite = Annotated[float, Strict(), Field(allow_inf_nan=False)]
+Positive = Annotated[float, Strict(), Field(gt=0.0, allow_inf_nan=False)]
+Vec3 = Annotated[list[Finite], Field(min_length=3, max_length=3)]
+Face = Annotated[list[Annotated[int, Strict(), Field(ge=0)]], Field(min_length=3, max_length=3)]
+
+AXES = "xyz"
+METHODS = ("tz_union", "depth_only")
+#: A target's clear value: the empty tz-box (t_lo > t_hi, z_lo > z_hi), finite.
+EMPTY_BOX = (2.0, 2.0, -2.0, -2.0)
+BOX_BLEND = ("min", "min", "max", "max")
+#: Margin of a view around the swept volumes, as a share of their extent (keeps them inside the
+#: clip volume, depth included).
+MARGIN = 0.05
+
+
+@dataclass
+class ObjectSpec:
+    """One ``[[objects]]`` entry."""
+
+    __pydantic_config__ = FORBID
+    shape: Literal["icosphere", "rounded_box", "mesh"] = key("the object's surface: a generated icosphere, a "
+                                                            "generated rounded box, or the `vertices` and "
+                                                            "`faces` given")
+    name: Text = key("its name in the results (default: object<index>)", default="")
+    size: Vec3 = key("half extents along x, y, z (icosphere: size[0] is the radius)",
+                     default_factory=lambda: [0.5, 0.5, 0.5])
+    subdivisions: count(0, 5) = key("icosphere: subdivisions of the icosahedron; rounded box: cells per "
+                                    "face side minus one", default=2)
+    vertices: list[Vec3] = key("mesh: the vertices, in object space", default_factory=list)
+    faces: list[Face] = key("mesh: triangles, three vertex indices each", default_factory=list)
+    start: Vec3 = key("position of the object's origin at t=0", default_factory=lambda: [0.0, 0.0, 0.0])
+    end: Vec3 | None = key("position at t=1 (default: start)", default=None)
+    turn: Vec3 = key("rotation at t=1 relative to t=0, degrees about x, then y, then z (about the origin)",
+                     default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+@dataclass
+class RandomSpec:
+    """The ``[random]`` table: many generated moving icospheres and rounded boxes."""
+
+    __pydantic_config__ = FORBID
+    count: count(1, 10_000) = key("number of objects")
+    seed: count(0) = key("random seed", default=0)
+    extent: Positive = key("side of the cube the objects start in", default=10.0)
+    radius: Positive = key("largest half extent of an object", default=0.4)
+    travel: Positive = key("largest distance an object moves over the shutter", default=1.0)
+    subdivisions: count(0, 3) = key("icosphere subdivisions / rounded-box cells", default=1)
+
+
+@dataclass
+class Settings:
+    """The keys of a `collision` file besides `kind`."""
+
+    __pydantic_config__ = FORBID
+    resolution: count(1, 4096) = key("pixels along each side of every view", default=32)
+    objects: list[ObjectSpec] = key("the objects, each its own table", default_factory=list)
+    random: RandomSpec | None = key("generated objects added after `objects`", default=None)
+
+
+@dataclass
+class Body:
+    """A moving triangle mesh: vertices at t=0 and t=1 (V, 3) and faces (F, 3)."""
+
+    name: str
+    v0: np.ndarray
+    v1: np.ndarray
+    faces: np.ndarray
+
+    def at(self, t: float) -> np.ndarray:
+        """The vertices at time ``t`` (linear per vertex)."""
+        return (1.0 - t) * self.v0 + t * self.v1
+
+    def swept_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """The bounding box of the swept volume (the vertices' paths are segments)."""
+        both = np.concatenate([self.v0, self.v1])
+        return both.min(axis=0), both.max(axis=0)
+
+
+def icosphere(subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
+    """A unit icosphere: the icosahedron with each triangle split in four ``subdivisions`` times,
+    its vertices pushed to the sphere."""
+    g = (1.0 + 5 ** 0.5) / 2
+    verts = [(-1, g, 0), (1, g, 0), (-1, -g, 0), (1, -g, 0), (0, -1, g), (0, 1, g), (0, -1, -g), (0, 1, -g),
+             (g, 0, -1), (g, 0, 1), (-g, 0, -1), (-g, 0, 1)]
+    faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2),
+             (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11),
+             (6, 2, 10), (8, 6, 7), (9, 8, 1)]
+    pts = [np.array(v, float) / np.linalg.norm(v) for v in verts]
+    for _ in range(subdivisions):
+        middle: dict[tuple[int, int], int] = {}
+
+        def mid(a: int, b: int) -> int:
+            k = (min(a, b), max(a, b))
+            if k not in middle:
+                m = pts[a] + pts[b]
+                pts.append(m / np.linalg.norm(m))
+                middle[k] = len(pts) - 1
+            return middle[k]
+
+        new = []
+        for a, b, c in faces:
+            ab, bc, ca = mid(a, b), mid(b, c), mid(c, a)
+            new += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
+        faces = new
+    return np.array(pts), np.array(faces, np.int64)
+
+
+def rounded_box(half: np.ndarray, cells: int) -> tuple[np.ndarray, np.ndarray]:
+    """A box of half extents ``half`` with edges and corners rounded by a quarter of its smallest half
+    extent: each face a grid of ``cells`` x ``cells`` squares, every point of the unit cube's surface
+    moved to the nearest point of the inner box plus the rounding radius along the offset."""
+    radius = 0.25 * float(np.min(half))
+    inner = half - radius
+    s = np.linspace(-1.0, 1.0, cells + 1)
+    pts, faces = [], []
+    for axis in range(3):
+        for sign in (-1.0, 1.0):
+            a, b = (axis + 1) % 3, (axis + 2) % 3
+            base = len(pts)
+            for i in s:
+                for j in s:
+                    p = np.zeros(3)
+                    p[axis], p[a], p[b] = sign, i, j
+                    pts.append(p)
+            n = cells + 1
+            for i in range(cells):
+                for j in range(cells):
+                    v = base + i * n + j
+                    faces += [(v, v + n, v + n + 1), (v, v + n + 1, v + 1)]
+    cube = np.array(pts) * half
+    core = np.clip(cube, -inner, inner)
+    offset = cube - core
+    verts = core + radius * offset / np.linalg.norm(offset, axis=1, keepdims=True)
+    return verts, np.array(faces, np.int64)
+
+
+def rotation(degrees: list[float]) -> np.ndarray:
+    """The rotation about x, then y, then z by ``degrees``."""
+    ax, ay, az = np.radians(degrees)
+    rx = np.array([[1, 0, 0], [0, np.cos(ax), -np.sin(ax)], [0, np.sin(ax), np.cos(ax)]])
+    ry = np.array([[np.cos(ay), 0, np.sin(ay)], [0, 1, 0], [-np.sin(ay), 0, np.cos(ay)]])
+    rz = np.array([[np.cos(az), -np.sin(az), 0], [np.sin(az), np.cos(az), 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def make_body(spec: ObjectSpec, index: int, where: str) -> Body:
+    """The moving mesh of ``spec`` (``where``: the file, for errors)."""
+    name = spec.name or f"object{index}"
+    at = f"{where}: objects[{index}] ('{name}')"
+    half = np.asarray(spec.size, float)
+    if spec.shape == "mesh":
+        verts = np.asarray(spec.vertices, float).reshape(-1, 3)
+        faces = np.asarray(spec.faces, np.int64).reshape(-1, 3)
+        if len(faces) and faces.max() >= len(verts):
+            raise UserError(f"{at}: faces index vertex {int(faces.max())}, but there are {len(verts)} vertices")
+    elif np.any(half <= 0):
+        raise UserError(f"{at}: size needs positive half extents, got {spec.size}")
+    elif spec.shape == "icosphere":
+        verts, faces = icosphere(spec.subdivisions)
+        verts = verts * half[0]
+    else:
+        verts, faces = rounded_box(half, spec.subdivisions + 1)
+    if not len(faces):
+        raise UserError(f"{at}: the object has no triangles")
+    start = np.asarray(spec.start, float)
+    end = start if spec.end is None else np.asarray(spec.end, float)
+    return Body(name, verts + start, verts @ rotation(spec.turn).T + end, faces)
+
+
+def random_bodies(spec: RandomSpec, first: int) -> list[Body]:
+    """``spec.count`` generated objects, numbered from ``first``: icospheres and rounded boxes at random
+    places in a cube, each moving by a random translation and turn."""
+    rng = np.random.default_rng(spec.seed)
+    out = []
+    for i in range(spec.count):
+        size = list(rng.uniform(0.4, 1.0, 3) * spec.radius)
+        start = list(rng.uniform(0.0, spec.extent, 3))
+        step = rng.normal(size=3)
+        end = list(np.asarray(start) + step / np.linalg.norm(step) * rng.uniform(0, spec.travel))
+        shape = "icosphere" if rng.random() < 0.5 else "rounded_box"
+        obj = ObjectSpec(shape=shape, name=f"r{i}", size=size, subdivisions=spec.subdivisions, start=start,
+                         end=end, turn=list(rng.uniform(-45, 45, 3)))
+        out.append(make_body(obj, first + i, "random"))
+    return out
+
+
+def view_draw(body: Body, axis: int, lo: np.ndarray, hi: np.ndarray, resolution: int):
+    """``body``'s triangles in the orthographic view along ``axis`` whose clip volume [-1, 1]^3 maps the
+    box [lo, hi]: image x and y along the next two axes, depth along ``axis``."""
+    from pipeline_sim.draw import draw_from_clip
+
+    order = [(axis + 1) % 3, (axis + 2) % 3, axis]
+
+    def clip(v: np.ndarray) -> np.ndarray:
+        xyz = (v[:, order] - lo[order]) / (hi[order] - lo[order]) * 2.0 - 1.0
+        return np.concatenate([xyz, np.ones((len(v), 1))], axis=1)[body.faces]
+
+    return draw_from_clip(clip(body.v0), clip(body.v1), width=resolution, height=resolution)
+
+
+def view_box(a: Body, b: Body) -> tuple[np.ndarray, np.ndarray]:
+    """The box the views of a pair map to their clip volume: both swept volumes with a margin."""
+    (lo_a, hi_a), (lo_b, hi_b) = a.swept_box(), b.swept_box()
+    lo, hi = np.minimum(lo_a, lo_b), np.maximum(hi_a, hi_b)
+    pad = MARGIN * max(float(np.max(hi - lo)), 1e-6)
+    return lo - pad, hi + pad
+
+
+def box_pass(a: Body, b: Body, axis: int, resolution: int, arch, name: str):
+    """The conservative pass along ``axis`` writing the union tz-boxes of ``a`` (target "a", draw 0)
+    and ``b`` (target "b", draw 1) per pixel (Nilsson12 §3)."""
+    from pipeline_sim.pass_state import PassState
+    from pipeline_sim.render import RenderPass
+    from pipeline_sim.shaders import interval_shader
+    from pipeline_sim.targets import ShaderOutput, Target
+
+    lo, hi = view_box(a, b)
+    targets = tuple(Target(t, source="box", blend=BOX_BLEND, clear=EMPTY_BOX, depth="always", draws=(d,))
+                    for d, t in enumerate("ab"))
+    return RenderPass(draw=[view_draw(a, axis, lo, hi, resolution), view_draw(b, axis, lo, hi, resolution)],
+                      arch=arch, spp=1, name=name, state=PassState(mode="conservative", depth_test="always",
+                                                                   depth_write=False),
+                      shader=interval_shader, outputs=(ShaderOutput("box", 4),), targets=targets)
+
+
+def overlaps(box_a: np.ndarray, box_b: np.ndarray) -> dict[str, np.ndarray]:
+    """Per pixel, whether two union tz-box images (H, W, 4: t_lo, z_lo, t_hi, z_hi) overlap in t, in z
+    and in both (empty boxes overlap nothing)."""
+    def meet(c: int) -> np.ndarray:
+        return np.maximum(box_a[..., c], box_b[..., c]) <= np.minimum(box_a[..., c + 2], box_b[..., c + 2])
+
+    t, z = meet(0), meet(1)
+    return {"t": t, "z": z, "tz": t & z}
+
+
+def swept_boxes_meet(a: Body, b: Body) -> bool:
+    """Whether the bounding boxes of two swept volumes meet (pairs that do not are never drawn)."""
+    (lo_a, hi_a), (lo_b, hi_b) = a.swept_box(), b.swept_box()
+    return bool(np.all(lo_a <= hi_b) and np.all(lo_b <= hi_a))
+
+
+class Collision(Workload):
+    """The kind ``collision``: the PCS of every pair of moving objects by tz-box union and by depth only."""
+
+    file_schema = Settings
+
+    @classmethod
+    def load(cls, path, data: Settings, arch, image: dict[str, int]) -> "Collision":
+        if image:
+            raise UserError(f"{path}: a collision workload has no image settings ({', '.join(image)}); "
+                            "set its resolution in the file")
+        self = cls(path, arch)
+        self.resolution = data.resolution
+        self.bodies = [make_body(o, i, str(path)) for i, o in enumerate(data.objects)]
+        if data.random is not None:
+            self.bodies += random_bodies(data.random, len(self.bodies))
+        if len(self.bodies) < 2:
+            raise UserError(f"{path}: objects: a collision workload needs at least two objects, "
+                            f"got {len(self.bodies)}")
+        self.data = data
+        return self
+
+    def check(self, variants=None, *, reference_spp=None) -> str:
+        n = sum(len(b.faces) for b in self.bodies)
+        return f"{len(self.bodies)} objects, {n} triangles, views of {self.resolution}x{self.resolution} pixels"
+
+    def run(self, progress=None) -> WorkloadResult:
+        passes: dict[str, Any] = {}
+        pcs: dict[str, list[list[str]]] = {m: [] for m in METHODS}
+        cost = {m: {"passes": 0, "pixels_shaded": 0, "cycles": 0.0} for m in METHODS}
+        rows = []
+        pairs = list(itertools.combinations(range(len(self.bodies)), 2))
+        candidates = [(i, j) for i, j in pairs if swept_boxes_meet(self.bodies[i], self.bodies[j])]
+        for i, j in candidates:
+            a, b = self.bodies[i], self.bodies[j]
+            kept = {m: True for m in METHODS}
+            for axis in range(3):
+                name = f"{a.name}-{b.name}.{AXES[axis]}"
+                res = self.run_passes([box_pass(a, b, axis, self.resolution, self.arch, name)], progress)[name]
+                passes[name] = res
+                over = overlaps(res.images["a"][0], res.images["b"][0])
+                shaded = res.counter("shading", "shader_executions")
+                rows.append({"pair": f"{a.name}-{b.name}", "axis": AXES[axis], "pixels_shaded": shaded,
+                             "cycles": res.timing.frame_cycles, "pixels_t": int(over["t"].sum()),
+                             "pixels_z": int(over["z"].sum()), "pixels_tz": int(over["tz"].sum())})
+                for m, layer in zip(METHODS, ("tz", "z")):
+                    if kept[m]:
+                        cost[m]["passes"] += 1
+                        cost[m]["pixels_shaded"] += shaded
+                        cost[m]["cycles"] += res.timing.frame_cycles
+                        kept[m] = bool(over[layer].any())
+                if not any(kept.values()):
+                    break
+            for m in METHODS:
+                if kept[m]:
+                    pcs[m].append([a.name, b.name])
+        results = {
+            "objects": len(self.bodies), "pairs": len(pairs), "swept_box_pairs": len(candidates),
+            "resolution": self.resolution,
+            "methods": {m: {"pcs_size": len(pcs[m]), "pcs": pcs[m], **cost[m]} for m in METHODS},
+        }
+        return WorkloadResult(passes, results=results, tables={"views": pd.DataFrame(rows)})
+
+    def resolved(self) -> dict[str, Any]:
+        return {**super().resolved(), "resolution": self.resolution,
+                "objects": [{"name": b.name, "vertices": len(b.v0), "triangles": len(b.faces)} for b in self.bodies]}
+
+    @property
+    def digest(self) -> str:
+        h = hashlib.sha256(json.dumps(self.resolution).encode())
+        for b in self.bodies:
+            for arr in (b.v0, b.v1, b.faces):
+                h.update(np.ascontiguousarray(arr).tobytes())
+        return h.hexdigest()
+
+
+WORKLOAD = Collision
