@@ -1,0 +1,170 @@
+"""The collision workload (Nilsson12 §3) against python-fcl's exact discrete collision test at dense
+times (the meshes' vertices interpolated linearly, as the workload moves them): never a missed
+collision, on the shipped scenes and on random small scenes; every union tz-box holds the (t, z) of
+densely sampled points of its object; the toaster and ball are told apart by time only; bad input is
+one line, exit 2."""
+
+import json
+
+import fcl
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pipeline_sim.cli import main
+from pipeline_sim.config import load_arch
+from pipeline_sim.render import run_pass
+from pipeline_sim.workload import load_workload
+from workloads.apps import collision as C
+
+APP = "workloads/apps/collision"
+TIMES = np.linspace(0.0, 1.0, 201)
+
+
+def fcl_object(verts: np.ndarray, faces: np.ndarray) -> fcl.CollisionObject:
+    model = fcl.BVHModel()
+    model.beginModel(len(verts), len(faces))
+    model.addSubModel(verts, faces)
+    model.endModel()
+    return fcl.CollisionObject(model, fcl.Transform())
+
+
+def fcl_colliding(a: C.Body, b: C.Body, times=TIMES) -> bool:
+    """Whether fcl finds the two meshes in contact at any of ``times``."""
+    for t in times:
+        contacts = fcl.collide(fcl_object(a.at(t), a.faces), fcl_object(b.at(t), b.faces),
+                               fcl.CollisionRequest(), fcl.CollisionResult())
+        if contacts:
+            return True
+    return False
+
+
+def pcs(results: dict) -> dict[str, set[tuple[str, str]]]:
+    return {m: {tuple(p) for p in v["pcs"]} for m, v in results["methods"].items()}
+
+
+def run_file(root, name: str, tmp_path) -> tuple[C.Collision, dict]:
+    path = tmp_path / name
+    path.write_text((root / APP / name).read_text())
+    w = load_workload(path, load_arch())
+    return w, w.run().results
+
+
+def assert_no_missed_collision(w: C.Collision, results: dict) -> int:
+    """Every pair fcl finds colliding is in every method's PCS; returns how many collide."""
+    found = pcs(results)
+    colliding = 0
+    for a, b in zip(*np.triu_indices(len(w.bodies), 1)):
+        ba, bb = w.bodies[a], w.bodies[b]
+        if C.swept_boxes_meet(ba, bb) and fcl_colliding(ba, bb):
+            colliding += 1
+            for m, pairs in found.items():
+                assert (ba.name, bb.name) in pairs, (m, ba.name, bb.name)
+    return colliding
+
+
+def test_colliding_pair_is_in_every_pcs(root, tmp_path):
+    w, results = run_file(root, "collide.toml", tmp_path)
+    assert assert_no_missed_collision(w, results) == 1
+    assert results["methods"]["tz_union"]["passes"] == 3
+
+
+def test_toaster_dodges_the_ball_in_time_only(root, tmp_path):
+    w, results = run_file(root, "toaster.toml", tmp_path)
+    toaster, ball = w.bodies
+    # never in contact (fcl's distance stays positive at every dense time) ...
+    gaps = [fcl.distance(fcl_object(toaster.at(t), toaster.faces), fcl_object(ball.at(t), ball.faces),
+                         fcl.DistanceRequest(), fcl.DistanceResult()) for t in TIMES]
+    assert min(gaps) > 0.1
+    # ... while the swept volumes overlap: a point of the ball at t=0 is inside the toaster at t=1
+    assert np.all(np.abs(ball.at(0.0).mean(axis=0) - toaster.at(1.0).mean(axis=0)) < [0.8, 0.5, 0.6])
+    found = pcs(results)
+    assert found["depth_only"] == {("toaster", "ball")} and found["tz_union"] == set()
+    assert results["methods"]["depth_only"]["passes"] == 3   # z overlaps in every axis view
+    assert results["methods"]["tz_union"]["passes"] < 3
+
+
+def test_many_objects_no_missed_collision(tmp_path):
+    path = tmp_path / "many.toml"
+    path.write_text('kind = "collision"\nresolution = 12\n[random]\ncount = 24\nseed = 3\nextent = 3.0\n'
+                    'radius = 0.5\ntravel = 1.5\nsubdivisions = 0\n')
+    w = load_workload(path, load_arch())
+    results = w.run().results
+    assert assert_no_missed_collision(w, results) >= 3
+    sizes = {m: v["pcs_size"] for m, v in results["methods"].items()}
+    assert sizes["tz_union"] <= sizes["depth_only"] <= results["swept_box_pairs"]
+
+
+vec = st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3)
+
+
+@settings(max_examples=25, deadline=None)
+@given(shapes=st.lists(st.sampled_from(["icosphere", "rounded_box"]), min_size=2, max_size=2),
+       sizes=st.lists(st.lists(st.floats(0.2, 0.7), min_size=3, max_size=3), min_size=2, max_size=2),
+       starts=st.lists(vec, min_size=2, max_size=2), ends=st.lists(vec, min_size=2, max_size=2),
+       turns=st.lists(st.lists(st.floats(-90, 90), min_size=3, max_size=3), min_size=2, max_size=2),
+       resolution=st.integers(2, 24))
+def test_random_pairs_never_miss_a_collision(shapes, sizes, starts, ends, turns, resolution):
+    w = C.Collision("random.toml", load_arch())
+    w.resolution = resolution
+    w.bodies = [C.make_body(C.ObjectSpec(shape=shapes[i], size=sizes[i], subdivisions=1, start=starts[i],
+                                         end=ends[i], turn=turns[i]), i, "random") for i in range(2)]
+    results = w.run().results
+    assert_no_missed_collision(w, results)
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_union_box_holds_every_point_of_the_object(root, tmp_path, axis):
+    """Dense (t, barycentric) samples of each triangle of both objects, projected by hand: the pixel
+    each falls in holds its (t, z) in its object's union box."""
+    w = load_workload(root / APP / "collide.toml", load_arch())
+    a, b = w.bodies
+    res = run_pass(C.box_pass(a, b, axis, 24, load_arch(), "p"))
+    lo, hi = C.view_box(a, b)
+    i, j = (axis + 1) % 3, (axis + 2) % 3
+    n = 24
+    u, v = np.meshgrid(np.linspace(0, 1, 9), np.linspace(0, 1, 9))
+    keep = u + v <= 1
+    bary = np.stack([1 - u[keep] - v[keep], u[keep], v[keep]], axis=1)
+    checked = 0
+    for body, target in ((a, "a"), (b, "b")):
+        box = res.images[target][0]
+        for t in np.linspace(0, 1, 41):
+            pts = np.einsum("kc,fcd->fkd", bary, body.at(t)[body.faces]).reshape(-1, 3)
+            px = np.floor((pts[:, i] - lo[i]) / (hi[i] - lo[i]) * n).astype(int)
+            py = np.floor((hi[j] - pts[:, j]) / (hi[j] - lo[j]) * n).astype(int)   # row 0 at the top
+            z = (pts[:, axis] - lo[axis]) / (hi[axis] - lo[axis]) * 2 - 1
+            cell = box[py, px]
+            eps = 1e-5
+            assert np.all(cell[:, 0] <= t + eps) and np.all(t - eps <= cell[:, 2]), (target, t)
+            assert np.all(cell[:, 1] <= z + eps) and np.all(z - eps <= cell[:, 3]), (target, t)
+            checked += len(pts)
+    assert checked > 100_000
+
+
+@pytest.mark.parametrize("text, message", [
+    ('resolution = 0\n[[objects]]\nshape = "icosphere"\n[[objects]]\nshape = "icosphere"\n', "resolution"),
+    ('[[objects]]\nshape = "icosphere"\n[[objects]]\nname = "empty"\nshape = "mesh"\n',
+     "objects[1] ('empty'): the object has no triangles"),
+    ('[[objects]]\nshape = "icosphere"\n[[objects]]\nshape = "icosphere"\nend = [nan, 0.0, 0.0]\n',
+     "objects[1].end"),
+    ('[[objects]]\nshape = "icosphere"\n', "at least two objects"),
+])
+def test_bad_input_is_one_line_exit_2(tmp_path, capsys, text, message):
+    path = tmp_path / "bad.toml"
+    path.write_text('kind = "collision"\n' + text)
+    assert main(["run", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err and "bad.toml" in err, err
+    assert not (tmp_path / "out").exists()
+
+
+def test_results_json_is_strict_and_lists_every_method(root, tmp_path):
+    out = tmp_path / "run"
+    assert main(["run", str(root / APP / "toaster.toml"), "--out", str(out), "--quiet"]) == 0
+    results = json.loads((out / "results.json").read_text(), parse_constant=lambda c: pytest.fail(c))
+    for m in C.METHODS:
+        row = results["methods"][m]
+        assert row["pcs_size"] == len(row["pcs"]) and row["passes"] >= 1 and row["pixels_shaded"] > 0
+        assert row["cycles"] > 0
