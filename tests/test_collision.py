@@ -67,7 +67,7 @@ def assert_no_missed_collision(w: C.Collision, results: dict) -> int:
 def test_colliding_pair_is_in_every_pcs(root, tmp_path):
     w, results = run_file(root, "collide.toml", tmp_path)
     assert assert_no_missed_collision(w, results) == 1
-    assert results["methods"]["tz_union"]["passes"] == 3
+    assert results["methods"]["tz_union"]["passes"] == 3 and results["methods"]["cullide"]["passes"] == 6
 
 
 def test_toaster_dodges_the_ball_in_time_only(root, tmp_path):
@@ -80,9 +80,11 @@ def test_toaster_dodges_the_ball_in_time_only(root, tmp_path):
     # ... while the swept volumes overlap: a point of the ball at t=0 is inside the toaster at t=1
     assert np.all(np.abs(ball.at(0.0).mean(axis=0) - toaster.at(1.0).mean(axis=0)) < [0.8, 0.5, 0.6])
     found = pcs(results)
-    assert found["depth_only"] == {("toaster", "ball")} and found["tz_union"] == set()
-    assert results["methods"]["depth_only"]["passes"] == 3   # z overlaps in every axis view
-    assert results["methods"]["tz_union"]["passes"] < 3
+    assert found["depth_only"] == found["cullide"] == {("toaster", "ball")}
+    assert found["tz_union"] == found["tz_fragment"] == set()
+    methods = results["methods"]
+    assert methods["depth_only"]["passes"] == 3 and methods["cullide"]["passes"] == 6  # z meets in every view
+    assert methods["tz_union"]["passes"] < 3 and methods["tz_fragment"]["passes"] < 6
 
 
 def test_many_objects_no_missed_collision(tmp_path):
@@ -92,14 +94,17 @@ def test_many_objects_no_missed_collision(tmp_path):
     w = load_workload(path, load_arch())
     results = w.run().results
     assert assert_no_missed_collision(w, results) >= 3
-    sizes = {m: v["pcs_size"] for m, v in results["methods"].items()}
-    assert sizes["tz_union"] <= sizes["depth_only"] <= results["swept_box_pairs"]
+    # each test's separation implies the next one's: a fragment's tz-box inside its object's union box;
+    # no pixel with z overlap when one object lies wholly in front of the other
+    found = pcs(results)
+    assert found["tz_fragment"] <= found["tz_union"] <= found["depth_only"] <= found["cullide"]
+    assert len(found["cullide"]) <= results["swept_box_pairs"]
 
 
 vec = st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3)
 
 
-@settings(max_examples=25, deadline=None)
+@settings(max_examples=40, deadline=None)
 @given(shapes=st.lists(st.sampled_from(["icosphere", "rounded_box"]), min_size=2, max_size=2),
        sizes=st.lists(st.lists(st.floats(0.2, 0.7), min_size=3, max_size=3), min_size=2, max_size=2),
        starts=st.lists(vec, min_size=2, max_size=2), ends=st.lists(vec, min_size=2, max_size=2),

@@ -15,10 +15,23 @@ A pair leaves the potentially colliding set (PCS) of a method at the first view 
 both objects' boxes overlap:
 
 * ``tz_union``: in t and in z (Nilsson12 §3, Fig. 5 left);
-* ``depth_only``: in z, whatever the times (what a depth-only test such as CULLIDE can see).
+* ``depth_only``: in z, whatever the times.
+
+Two more methods test each fragment of the second object against the first object's union box at
+its pixel, read as a texture: per view a pass draws the first object alone into its box target,
+then a pass draws the second, whose shader sets per pixel a flag for each test a fragment fails to
+separate (a "max" blended target, the query):
+
+* ``tz_fragment``: the fragment's own tz-box overlaps the union box (Nilsson12 §3, Fig. 5 right,
+  tighter than ``tz_union``);
+* ``cullide``: the CULLIDE baseline of Govindaraju et al. 2003 on the swept volumes: the second
+  object is "fully visible" in front of the first (every fragment's z_hi below the first object's
+  nearest z_lo) or behind it (every z_lo beyond its farthest z_hi); the front and back directions of
+  the three axes are its six tests, the depth pass and the reversed-test query of each direction
+  sharing one pass each.
 
 Each method stops at its own first separating view; its passes, shaded pixels and simulated cycles
-are the ones it needed (the two share the passes they both needed).
+are the ones it needed (methods that share a pass each count it).
 """
 
 from __future__ import annotations
@@ -29,13 +42,16 @@ import json
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
+import numba as nb
 import numpy as np
 import pandas as pd
 from pydantic import Field, Strict
 
 from pipeline_sim.errors import UserError
+from pipeline_sim.pass_state import PassState
 from pipeline_sim.schema import key
 from pipeline_sim.settings import FORBID, Text, count
+from pipeline_sim.shaders import IN_T_HI, IN_T_LO, IN_X, IN_Y, IN_Z_HI, IN_Z_LO, fetch
 from pipeline_sim.workload import Workload, WorkloadResult
 
 Finite = Annotated[float, Strict(), Field(allow_inf_nan=False)]
@@ -44,10 +60,15 @@ Vec3 = Annotated[list[Finite], Field(min_length=3, max_length=3)]
 Face = Annotated[list[Annotated[int, Strict(), Field(ge=0)]], Field(min_length=3, max_length=3)]
 
 AXES = "xyz"
-METHODS = ("tz_union", "depth_only")
+METHODS = ("tz_union", "depth_only", "tz_fragment", "cullide")
+#: The flags the fragment pass sets (its target's channels): the fragment's tz-box meets the union
+#: box; its z_hi reaches the union's z_lo (not in front); its z_lo reaches the union's z_hi (not behind).
+FLAGS = ("tz", "not_in_front", "not_behind")
 #: A target's clear value: the empty tz-box (t_lo > t_hi, z_lo > z_hi), finite.
 EMPTY_BOX = (2.0, 2.0, -2.0, -2.0)
 BOX_BLEND = ("min", "min", "max", "max")
+#: The state of every pass: conservative, every fragment written, no depth kept.
+CONSERVATIVE = PassState(mode="conservative", depth_test="always", depth_write=False)
 #: Margin of a view around the swept volumes, as a share of their extent (keeps them inside the
 #: clip volume, depth included).
 MARGIN = 0.05
@@ -249,7 +270,6 @@ def view_box(a: Body, b: Body) -> tuple[np.ndarray, np.ndarray]:
 def box_pass(a: Body, b: Body, axis: int, resolution: int, arch, name: str):
     """The conservative pass along ``axis`` writing the union tz-boxes of ``a`` (target "a", draw 0)
     and ``b`` (target "b", draw 1) per pixel (Nilsson12 §3)."""
-    from pipeline_sim.pass_state import PassState
     from pipeline_sim.render import RenderPass
     from pipeline_sim.shaders import interval_shader
     from pipeline_sim.targets import ShaderOutput, Target
@@ -258,9 +278,52 @@ def box_pass(a: Body, b: Body, axis: int, resolution: int, arch, name: str):
     targets = tuple(Target(t, source="box", blend=BOX_BLEND, clear=EMPTY_BOX, depth="always", draws=(d,))
                     for d, t in enumerate("ab"))
     return RenderPass(draw=[view_draw(a, axis, lo, hi, resolution), view_draw(b, axis, lo, hi, resolution)],
-                      arch=arch, spp=1, name=name, state=PassState(mode="conservative", depth_test="always",
-                                                                   depth_write=False),
+                      arch=arch, spp=1, name=name, state=CONSERVATIVE,
                       shader=interval_shader, outputs=(ShaderOutput("box", 4),), targets=targets)
+
+
+@nb.njit(cache=True)
+def fragment_shader(inputs, params, textures, out, append):
+    """Each (triangle, pixel) tz-box of the second object against the first object's union box at the
+    pixel (``textures[0]``, t_lo, z_lo, t_hi, z_hi): Nilsson12 §3, Fig. 5 right, and the CULLIDE
+    depth tests (Govindaraju et al. 2003) on conservative depths; writes the ``FLAGS``, 1 or 0."""
+    box = textures[0]
+    for i in range(inputs.shape[1]):
+        x, y = inputs[IN_X, i], inputs[IN_Y, i]
+        t_lo, z_lo, t_hi, z_hi = fetch(box, x, y, 0), fetch(box, x, y, 1), fetch(box, x, y, 2), fetch(box, x, y, 3)
+        meet_t = max(t_lo, inputs[IN_T_LO, i]) <= min(t_hi, inputs[IN_T_HI, i])
+        meet_z = max(z_lo, inputs[IN_Z_LO, i]) <= min(z_hi, inputs[IN_Z_HI, i])
+        out[i, 0] = 1.0 if meet_t and meet_z else 0.0
+        out[i, 1] = 1.0 if inputs[IN_Z_HI, i] >= z_lo else 0.0
+        out[i, 2] = 1.0 if inputs[IN_Z_LO, i] <= z_hi else 0.0
+
+
+def object_pass(a: Body, b: Body, axis: int, resolution: int, arch, name: str):
+    """The conservative pass along ``axis`` (the view of the pair ``a``, ``b``) drawing ``a`` alone
+    into its union tz-box target "a"."""
+    from pipeline_sim.render import RenderPass
+    from pipeline_sim.shaders import interval_shader
+    from pipeline_sim.targets import ShaderOutput, Target
+
+    lo, hi = view_box(a, b)
+    return RenderPass(draw=view_draw(a, axis, lo, hi, resolution), arch=arch, spp=1, name=name, state=CONSERVATIVE,
+                      shader=interval_shader, outputs=(ShaderOutput("box", 4),),
+                      targets=(Target("a", source="box", blend=BOX_BLEND, clear=EMPTY_BOX, depth="always"),))
+
+
+def fragment_pass(a: Body, b: Body, axis: int, resolution: int, arch, name: str, box_a: np.ndarray):
+    """The conservative pass along ``axis`` drawing ``b``, each fragment tested against ``box_a``
+    (``a``'s union boxes from :func:`object_pass`); target "flags" holds per pixel the max of the
+    fragments' ``FLAGS``."""
+    from pipeline_sim.render import RenderPass
+    from pipeline_sim.targets import ShaderOutput, Target
+
+    lo, hi = view_box(a, b)
+    return RenderPass(draw=view_draw(b, axis, lo, hi, resolution), arch=arch, spp=1, name=name, state=CONSERVATIVE,
+                      shader=fragment_shader, textures=(box_a.astype(np.float32),),
+                      outputs=(ShaderOutput("flags", len(FLAGS)),),
+                      targets=(Target("flags", source="flags", blend="max", clear=(0.0,) * len(FLAGS),
+                                      depth="always"),))
 
 
 def overlaps(box_a: np.ndarray, box_b: np.ndarray) -> dict[str, np.ndarray]:
@@ -305,41 +368,76 @@ class Collision(Workload):
         return f"{len(self.bodies)} objects, {n} triangles, views of {self.resolution}x{self.resolution} pixels"
 
     def run(self, progress=None) -> WorkloadResult:
-        passes: dict[str, Any] = {}
+        """Every pair whose swept boxes meet through the views of each method, pass by pass."""
+        self.passes: dict[str, Any] = {}
+        self.cost = {m: {"passes": 0, "pixels_shaded": 0, "cycles": 0.0} for m in METHODS}
+        self.rows: dict[str, list[dict[str, Any]]] = {"union_views": [], "fragment_views": []}
         pcs: dict[str, list[list[str]]] = {m: [] for m in METHODS}
-        cost = {m: {"passes": 0, "pixels_shaded": 0, "cycles": 0.0} for m in METHODS}
-        rows = []
         pairs = list(itertools.combinations(range(len(self.bodies)), 2))
         candidates = [(i, j) for i, j in pairs if swept_boxes_meet(self.bodies[i], self.bodies[j])]
         for i, j in candidates:
             a, b = self.bodies[i], self.bodies[j]
-            kept = {m: True for m in METHODS}
-            for axis in range(3):
-                name = f"{a.name}-{b.name}.{AXES[axis]}"
-                res = self.run_passes([box_pass(a, b, axis, self.resolution, self.arch, name)], progress)[name]
-                passes[name] = res
-                over = overlaps(res.images["a"][0], res.images["b"][0])
-                shaded = res.counter("shading", "shader_executions")
-                rows.append({"pair": f"{a.name}-{b.name}", "axis": AXES[axis], "pixels_shaded": shaded,
-                             "cycles": res.timing.frame_cycles, "pixels_t": int(over["t"].sum()),
-                             "pixels_z": int(over["z"].sum()), "pixels_tz": int(over["tz"].sum())})
-                for m, layer in zip(METHODS, ("tz", "z")):
-                    if kept[m]:
-                        cost[m]["passes"] += 1
-                        cost[m]["pixels_shaded"] += shaded
-                        cost[m]["cycles"] += res.timing.frame_cycles
-                        kept[m] = bool(over[layer].any())
-                if not any(kept.values()):
-                    break
+            kept = {**self._union_views(a, b), **self._fragment_views(a, b)}
             for m in METHODS:
                 if kept[m]:
                     pcs[m].append([a.name, b.name])
         results = {
             "objects": len(self.bodies), "pairs": len(pairs), "swept_box_pairs": len(candidates),
             "resolution": self.resolution,
-            "methods": {m: {"pcs_size": len(pcs[m]), "pcs": pcs[m], **cost[m]} for m in METHODS},
+            "methods": {m: {"pcs_size": len(pcs[m]), "pcs": pcs[m], **self.cost[m]} for m in METHODS},
         }
-        return WorkloadResult(passes, results=results, tables={"views": pd.DataFrame(rows)})
+        return WorkloadResult(self.passes, results=results, tables={k: pd.DataFrame(v) for k, v in self.rows.items()})
+
+    def _view(self, p, methods: list[str]):
+        """Run pass ``p``, its cost charged to ``methods``."""
+        res = self.run_passes([p], None)[p.name]
+        self.passes[p.name] = res
+        for m in methods:
+            self.cost[m]["passes"] += 1
+            self.cost[m]["pixels_shaded"] += res.counter("shading", "shader_executions")
+            self.cost[m]["cycles"] += res.timing.frame_cycles
+        return res
+
+    def _union_views(self, a: Body, b: Body) -> dict[str, bool]:
+        """``tz_union`` and ``depth_only``: one pass per view, until both have separated the pair;
+        whether each keeps it."""
+        kept = {"tz_union": True, "depth_only": True}
+        pair = f"{a.name}-{b.name}"
+        for axis in range(3):
+            if not any(kept.values()):
+                break
+            res = self._view(box_pass(a, b, axis, self.resolution, self.arch, f"{pair}.{AXES[axis]}"),
+                             [m for m in kept if kept[m]])
+            over = overlaps(res.images["a"][0], res.images["b"][0])
+            self.rows["union_views"].append({
+                "pair": pair, "axis": AXES[axis], "pixels_shaded": res.counter("shading", "shader_executions"),
+                "cycles": res.timing.frame_cycles, **{f"pixels_{k}": int(v.sum()) for k, v in over.items()}})
+            for m, layer in (("tz_union", "tz"), ("depth_only", "z")):
+                kept[m] = kept[m] and bool(over[layer].any())
+        return kept
+
+    def _fragment_views(self, a: Body, b: Body) -> dict[str, bool]:
+        """``tz_fragment`` and ``cullide``: per view a pass drawing ``a``'s union boxes and a pass
+        testing ``b``'s fragments against them, until both have separated the pair."""
+        kept = {"tz_fragment": True, "cullide": True}
+        pair = f"{a.name}-{b.name}"
+        for axis in range(3):
+            if not any(kept.values()):
+                break
+            methods = [m for m in kept if kept[m]]
+            first = self._view(object_pass(a, b, axis, self.resolution, self.arch, f"{pair}.{AXES[axis]}.a"),
+                               methods)
+            res = self._view(fragment_pass(a, b, axis, self.resolution, self.arch, f"{pair}.{AXES[axis]}.b",
+                                           first.images["a"][0]), methods)
+            flags = res.images["flags"][0] > 0.5
+            self.rows["fragment_views"].append({
+                "pair": pair, "axis": AXES[axis],
+                "pixels_shaded": sum(r.counter("shading", "shader_executions") for r in (first, res)),
+                "cycles": first.timing.frame_cycles + res.timing.frame_cycles,
+                **{f"pixels_{k}": int(flags[..., c].sum()) for c, k in enumerate(FLAGS)}})
+            kept["tz_fragment"] = kept["tz_fragment"] and bool(flags[..., 0].any())
+            kept["cullide"] = kept["cullide"] and bool(flags[..., 1].any() and flags[..., 2].any())
+        return kept
 
     def resolved(self) -> dict[str, Any]:
         return {**super().resolved(), "resolution": self.resolution,
