@@ -102,21 +102,35 @@ def test_many_objects_no_missed_collision(tmp_path):
 
 
 vec = st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3)
+speed = st.lists(st.floats(-6.0, 6.0), min_size=3, max_size=3)
 
 
-@settings(max_examples=40, deadline=None)
-@given(shapes=st.lists(st.sampled_from(["icosphere", "rounded_box"]), min_size=2, max_size=2),
-       sizes=st.lists(st.lists(st.floats(0.2, 0.7), min_size=3, max_size=3), min_size=2, max_size=2),
-       starts=st.lists(vec, min_size=2, max_size=2), ends=st.lists(vec, min_size=2, max_size=2),
-       turns=st.lists(st.lists(st.floats(-90, 90), min_size=3, max_size=3), min_size=2, max_size=2),
-       resolution=st.integers(2, 24))
-def test_random_pairs_never_miss_a_collision(shapes, sizes, starts, ends, turns, resolution):
+@st.composite
+def scenes(draw):
+    """Two objects near each other, moving little (long contacts), or each passing a point near the
+    origin at its own time in [0.2, 0.8], fast (brief contacts, if any)."""
+    crossing = draw(st.booleans())
+    specs = []
+    for i in range(2):
+        if crossing:
+            middle, velocity, when = np.array(draw(vec)) * 0.5, np.array(draw(speed)), draw(st.floats(0.2, 0.8))
+            start, end = list(middle - when * velocity), list(middle + (1 - when) * velocity)
+        else:
+            start, end = draw(vec), draw(vec)
+        specs.append(C.ObjectSpec(shape=draw(st.sampled_from(["icosphere", "rounded_box"])),
+                                  size=draw(st.lists(st.floats(0.2, 0.7), min_size=3, max_size=3)),
+                                  subdivisions=1, start=start, end=end,
+                                  turn=draw(st.lists(st.floats(-90, 90), min_size=3, max_size=3))))
+    return specs
+
+
+@settings(max_examples=60, deadline=None)
+@given(specs=scenes(), resolution=st.integers(2, 24))
+def test_random_pairs_never_miss_a_collision(specs, resolution):
     w = C.Collision("random.toml", load_arch())
     w.resolution = resolution
-    w.bodies = [C.make_body(C.ObjectSpec(shape=shapes[i], size=sizes[i], subdivisions=1, start=starts[i],
-                                         end=ends[i], turn=turns[i]), i, "random") for i in range(2)]
-    results = w.run().results
-    assert_no_missed_collision(w, results)
+    w.bodies = [C.make_body(spec, i, "random") for i, spec in enumerate(specs)]
+    assert_no_missed_collision(w, w.run().results)
 
 
 @pytest.mark.parametrize("axis", [0, 1, 2])
