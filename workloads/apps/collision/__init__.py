@@ -45,18 +45,18 @@ from typing import Annotated, Any, Literal
 import numba as nb
 import numpy as np
 import pandas as pd
+import trimesh
 from pydantic import Field, Strict
+from scipy.spatial.transform import Rotation
 
 from pipeline_sim.errors import UserError
 from pipeline_sim.pass_state import PassState
+from pipeline_sim.scene import Positive, Vec3
 from pipeline_sim.schema import key
 from pipeline_sim.settings import FORBID, Text, count
 from pipeline_sim.shaders import IN_T_HI, IN_T_LO, IN_X, IN_Y, IN_Z_HI, IN_Z_LO, fetch
 from pipeline_sim.workload import Workload, WorkloadResult
 
-Finite = Annotated[float, Strict(), Field(allow_inf_nan=False)]
-Positive = Annotated[float, Strict(), Field(gt=0.0, allow_inf_nan=False)]
-Vec3 = Annotated[list[Finite], Field(min_length=3, max_length=3)]
 Face = Annotated[list[Annotated[int, Strict(), Field(ge=0)]], Field(min_length=3, max_length=3)]
 
 AXES = "xyz"
@@ -137,35 +137,6 @@ class Body:
         return both.min(axis=0), both.max(axis=0)
 
 
-def icosphere(subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
-    """A unit icosphere: the icosahedron with each triangle split in four ``subdivisions`` times,
-    its vertices pushed to the sphere."""
-    g = (1.0 + 5 ** 0.5) / 2
-    verts = [(-1, g, 0), (1, g, 0), (-1, -g, 0), (1, -g, 0), (0, -1, g), (0, 1, g), (0, -1, -g), (0, 1, -g),
-             (g, 0, -1), (g, 0, 1), (-g, 0, -1), (-g, 0, 1)]
-    faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2),
-             (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11),
-             (6, 2, 10), (8, 6, 7), (9, 8, 1)]
-    pts = [np.array(v, float) / np.linalg.norm(v) for v in verts]
-    for _ in range(subdivisions):
-        middle: dict[tuple[int, int], int] = {}
-
-        def mid(a: int, b: int) -> int:
-            k = (min(a, b), max(a, b))
-            if k not in middle:
-                m = pts[a] + pts[b]
-                pts.append(m / np.linalg.norm(m))
-                middle[k] = len(pts) - 1
-            return middle[k]
-
-        new = []
-        for a, b, c in faces:
-            ab, bc, ca = mid(a, b), mid(b, c), mid(c, a)
-            new += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
-        faces = new
-    return np.array(pts), np.array(faces, np.int64)
-
-
 def rounded_box(half: np.ndarray, cells: int) -> tuple[np.ndarray, np.ndarray]:
     """A box of half extents ``half`` with edges and corners rounded by a quarter of its smallest half
     extent: each face a grid of ``cells`` x ``cells`` squares, every point of the unit cube's surface
@@ -195,15 +166,6 @@ def rounded_box(half: np.ndarray, cells: int) -> tuple[np.ndarray, np.ndarray]:
     return verts, np.array(faces, np.int64)
 
 
-def rotation(degrees: list[float]) -> np.ndarray:
-    """The rotation about x, then y, then z by ``degrees``."""
-    ax, ay, az = np.radians(degrees)
-    rx = np.array([[1, 0, 0], [0, np.cos(ax), -np.sin(ax)], [0, np.sin(ax), np.cos(ax)]])
-    ry = np.array([[np.cos(ay), 0, np.sin(ay)], [0, 1, 0], [-np.sin(ay), 0, np.cos(ay)]])
-    rz = np.array([[np.cos(az), -np.sin(az), 0], [np.sin(az), np.cos(az), 0], [0, 0, 1]])
-    return rz @ ry @ rx
-
-
 def make_body(spec: ObjectSpec, index: int, where: str) -> Body:
     """The moving mesh of ``spec`` (``where``: the file, for errors)."""
     name = spec.name or f"object{index}"
@@ -217,15 +179,16 @@ def make_body(spec: ObjectSpec, index: int, where: str) -> Body:
     elif np.any(half <= 0):
         raise UserError(f"{at}: size needs positive half extents, got {spec.size}")
     elif spec.shape == "icosphere":
-        verts, faces = icosphere(spec.subdivisions)
-        verts = verts * half[0]
+        sphere = trimesh.creation.icosphere(subdivisions=spec.subdivisions, radius=half[0])
+        verts, faces = np.asarray(sphere.vertices, float), np.asarray(sphere.faces, np.int64)
     else:
         verts, faces = rounded_box(half, spec.subdivisions + 1)
     if not len(faces):
         raise UserError(f"{at}: the object has no triangles")
     start = np.asarray(spec.start, float)
     end = start if spec.end is None else np.asarray(spec.end, float)
-    return Body(name, verts + start, verts @ rotation(spec.turn).T + end, faces)
+    turn = Rotation.from_euler("xyz", spec.turn, degrees=True).as_matrix()  # about x, then y, then z
+    return Body(name, verts + start, verts @ turn.T + end, faces)
 
 
 def random_bodies(spec: RandomSpec, first: int) -> list[Body]:
