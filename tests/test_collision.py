@@ -169,6 +169,12 @@ def test_union_box_holds_every_point_of_the_object(root, tmp_path, axis):
     ('[[objects]]\nshape = "icosphere"\n[[objects]]\nshape = "icosphere"\nend = [nan, 0.0, 0.0]\n',
      "objects[1].end"),
     ('[[objects]]\nshape = "icosphere"\n', "at least two objects"),
+    ('[[objects]]\nshape = "icosphere"\nname = "a"\n[[objects]]\nshape = "icosphere"\nname = "a"\n',
+     "names must be distinct, 'a' is given twice"),
+    ('[[objects]]\nshape = "icosphere"\nname = "a/b"\n[[objects]]\nshape = "icosphere"\n',
+     "objects[0] ('a/b'): name: use letters"),
+    ('[[objects]]\nshape = "icosphere"\n[[objects]]\nshape = "icosphere"\nstart = [1e300, 0.0, 0.0]\n',
+     "objects[1] ('object1'): a vertex reaches beyond"),
 ])
 def test_bad_input_is_one_line_exit_2(tmp_path, capsys, text, message):
     path = tmp_path / "bad.toml"

@@ -39,6 +39,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import re
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
@@ -51,7 +52,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline_sim.errors import UserError
 from pipeline_sim.pass_state import PassState
-from pipeline_sim.scene import Positive, Vec3
+from pipeline_sim.scene import MAX_COORDINATE, Positive, Vec3
 from pipeline_sim.schema import key
 from pipeline_sim.settings import FORBID, Text, count
 from pipeline_sim.shaders import IN_T_HI, IN_T_LO, IN_X, IN_Y, IN_Z_HI, IN_Z_LO, fetch
@@ -64,6 +65,8 @@ METHODS = ("tz_union", "depth_only", "tz_fragment", "cullide")
 #: The flags the fragment pass sets (its target's channels): the fragment's tz-box meets the union
 #: box; its z_hi reaches the union's z_lo (not in front); its z_lo reaches the union's z_hi (not behind).
 FLAGS = ("tz", "not_in_front", "not_behind")
+#: An object's name: it names its pairs' passes ("<a>-<b>.<axis>") and their folders.
+OBJECT_NAME = re.compile(r"[A-Za-z0-9_]+")
 #: A target's clear value: the empty tz-box (t_lo > t_hi, z_lo > z_hi), finite.
 EMPTY_BOX = (2.0, 2.0, -2.0, -2.0)
 BOX_BLEND = ("min", "min", "max", "max")
@@ -170,6 +173,8 @@ def make_body(spec: ObjectSpec, index: int, where: str) -> Body:
     """The moving mesh of ``spec`` (``where``: the file, for errors)."""
     name = spec.name or f"object{index}"
     at = f"{where}: objects[{index}] ('{name}')"
+    if not OBJECT_NAME.fullmatch(name):
+        raise UserError(f"{at}: name: use letters, digits and _ (it names the pair's passes)")
     half = np.asarray(spec.size, float)
     if spec.shape == "mesh":
         verts = np.asarray(spec.vertices, float).reshape(-1, 3)
@@ -188,7 +193,11 @@ def make_body(spec: ObjectSpec, index: int, where: str) -> Body:
     start = np.asarray(spec.start, float)
     end = start if spec.end is None else np.asarray(spec.end, float)
     turn = Rotation.from_euler("xyz", spec.turn, degrees=True).as_matrix()  # about x, then y, then z
-    return Body(name, verts + start, verts @ turn.T + end, faces)
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused just below
+        body = Body(name, verts + start, verts @ turn.T + end, faces)
+    if not np.all(np.abs(np.concatenate([body.v0, body.v1])) <= MAX_COORDINATE):
+        raise UserError(f"{at}: a vertex reaches beyond +-{MAX_COORDINATE:g} at t=0 or t=1")
+    return body
 
 
 def random_bodies(spec: RandomSpec, first: int) -> list[Body]:
@@ -320,6 +329,10 @@ class Collision(Workload):
         self.bodies = [make_body(o, i, str(path)) for i, o in enumerate(data.objects)]
         if data.random is not None:
             self.bodies += random_bodies(data.random, len(self.bodies))
+        names = [b.name for b in self.bodies]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise UserError(f"{path}: objects: names must be distinct, '{twice[0]}' is given twice")
         if len(self.bodies) < 2:
             raise UserError(f"{path}: objects: a collision workload needs at least two objects, "
                             f"got {len(self.bodies)}")
@@ -333,6 +346,7 @@ class Collision(Workload):
     def run(self, progress=None) -> WorkloadResult:
         """Every pair whose swept boxes meet through the views of each method, pass by pass."""
         self.passes: dict[str, Any] = {}
+        self.progress = progress
         self.cost = {m: {"passes": 0, "pixels_shaded": 0, "cycles": 0.0} for m in METHODS}
         self.rows: dict[str, list[dict[str, Any]]] = {"union_views": [], "fragment_views": []}
         pcs: dict[str, list[list[str]]] = {m: [] for m in METHODS}
@@ -349,11 +363,12 @@ class Collision(Workload):
             "resolution": self.resolution,
             "methods": {m: {"pcs_size": len(pcs[m]), "pcs": pcs[m], **self.cost[m]} for m in METHODS},
         }
-        return WorkloadResult(self.passes, results=results, tables={k: pd.DataFrame(v) for k, v in self.rows.items()})
+        tables = {k: pd.DataFrame(v) for k, v in self.rows.items()}
+        return WorkloadResult(self.passes, results=results, tables=tables)
 
     def _view(self, p, methods: list[str]):
         """Run pass ``p``, its cost charged to ``methods``."""
-        res = self.run_passes([p], None)[p.name]
+        res = self.run_passes([p], self.progress)[p.name]
         self.passes[p.name] = res
         for m in methods:
             self.cost[m]["passes"] += 1
