@@ -4,6 +4,7 @@ collision, on the shipped scenes and on random small scenes; every union tz-box 
 densely sampled points of its object; the toaster and ball are told apart by time only; bad input is
 one line, exit 2."""
 
+import dataclasses
 import json
 
 import fcl
@@ -37,6 +38,61 @@ def fcl_colliding(a: C.Body, b: C.Body, times=TIMES) -> bool:
                                fcl.CollisionRequest(), fcl.CollisionResult())
         if contacts:
             return True
+    return False
+
+
+def coplanar_times(p: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Times in [0, 1] at which the four points ``p + t d`` ((4, 3) each) are coplanar: the real roots
+    of the cubic det[p1 - p0, p2 - p0, p3 - p0](t), fitted exactly through four times."""
+    ts = np.array([0.0, 1 / 3, 2 / 3, 1.0])
+    det = [np.linalg.det((p[1:] + t * d[1:]) - (p[0] + t * d[0])) for t in ts]
+    coef = np.polyfit(ts, det, 3)
+    if np.all(np.abs(coef) < 1e-14):
+        return np.zeros(0)   # coplanar throughout: left to the discrete test
+    roots = np.roots(np.trim_zeros(np.where(np.abs(coef) < 1e-14, 0.0, coef), "f"))
+    real = roots[np.abs(roots.imag) < 1e-9].real
+    return real[(real >= -1e-9) & (real <= 1 + 1e-9)]
+
+
+def point_in_triangle(q: np.ndarray, tri: np.ndarray, eps: float = 1e-7) -> bool:
+    e0, e1, v = tri[1] - tri[0], tri[2] - tri[0], q - tri[0]
+    g = np.array([[e0 @ e0, e0 @ e1], [e0 @ e1, e1 @ e1]])
+    if abs(np.linalg.det(g)) < 1e-18:
+        return False
+    s, u = np.linalg.solve(g, [v @ e0, v @ e1])
+    return s >= -eps and u >= -eps and s + u <= 1 + eps and np.linalg.norm(tri[0] + s * e0 + u * e1 - q) < 1e-6
+
+
+def segments_meet(a0, a1, b0, b1, eps: float = 1e-7) -> bool:
+    da, db, r = a1 - a0, b1 - b0, a0 - b0
+    g = np.array([[da @ da, -(da @ db)], [-(da @ db), db @ db]])
+    if abs(np.linalg.det(g)) < 1e-18:
+        return False
+    s, u = np.linalg.solve(g, [-(r @ da), r @ db])
+    return -eps <= s <= 1 + eps and -eps <= u <= 1 + eps and np.linalg.norm(a0 + s * da - b0 - u * db) < 1e-6
+
+
+def exact_contact(a: C.Body, b: C.Body) -> bool:
+    """Whether the moving meshes ever touch: a vertex of one meets a triangle of the other, or an edge
+    of one an edge of the other, at a root of their coplanarity cubic (linear vertex paths), or they
+    intersect at t=0."""
+    if fcl_colliding(a, b, [0.0]):
+        return True
+    def edges(body):
+        return {tuple(sorted(e)) for f in body.faces for e in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0]))}
+    for m, n in ((a, b), (b, a)):
+        dv, dn = m.v1 - m.v0, n.v1 - n.v0
+        for v in range(len(m.v0)):
+            for f in n.faces:
+                p, d = np.vstack([m.v0[v], n.v0[f]]), np.vstack([dv[v], dn[f]])
+                if any(point_in_triangle(p[0] + t * d[0], p[1:] + t * d[1:]) for t in coplanar_times(p, d)):
+                    return True
+    da, db = a.v1 - a.v0, b.v1 - b.v0
+    for ea in edges(a):
+        for eb in edges(b):
+            p, d = np.vstack([a.v0[list(ea)], b.v0[list(eb)]]), np.vstack([da[list(ea)], db[list(eb)]])
+            if any(segments_meet(*(p + t * d)) for t in coplanar_times(p, d)):
+                return True
     return False
 
 
@@ -131,6 +187,34 @@ def test_random_pairs_never_miss_a_collision(specs, resolution):
     w.resolution = resolution
     w.bodies = [C.make_body(spec, i, "random") for i, spec in enumerate(specs)]
     assert_no_missed_collision(w, w.run().results)
+
+
+def test_exact_contact_between_dense_times_is_in_every_pcs():
+    """A ball crossing 1000 units during the shutter hits a small box between two of the 201 times:
+    fcl's dense test misses it, the exact coplanarity-cubic test finds it, and every method keeps it."""
+    ball = C.ObjectSpec(shape="icosphere", name="ball", subdivisions=0, size=[1.0, 1.0, 1.0],
+                        start=[-501.3, 0.0, 0.0], end=[498.7, 0.0, 0.0])
+    box = C.ObjectSpec(shape="rounded_box", name="box", subdivisions=0, size=[0.5, 0.5, 0.5],
+                       start=[0.0, 0.3, 0.0], end=[0.0, 0.3, 0.2], turn=[10.0, 20.0, 30.0])
+    w = C.Collision("fast.toml", load_arch())
+    w.resolution = 16
+    w.bodies = [C.make_body(spec, i, "fast") for i, spec in enumerate((ball, box))]
+    assert exact_contact(*w.bodies) and not fcl_colliding(*w.bodies)
+    found = pcs(w.run().results)
+    assert all(("ball", "box") in pairs for pairs in found.values()), found
+
+
+@settings(max_examples=30, deadline=None)
+@given(specs=scenes(), resolution=st.integers(2, 24))
+def test_random_small_pairs_never_miss_an_exact_contact(specs, resolution):
+    """Small meshes (an icosahedron, a rounded box of one cell per face) against the exact continuous
+    test: vertex-triangle and edge-edge contacts at the roots of their coplanarity cubics."""
+    w = C.Collision("random.toml", load_arch())
+    w.resolution = resolution
+    w.bodies = [C.make_body(dataclasses.replace(spec, subdivisions=0), i, "random") for i, spec in enumerate(specs)]
+    if C.swept_boxes_meet(*w.bodies) and exact_contact(*w.bodies):
+        found = pcs(w.run().results)
+        assert all((w.bodies[0].name, w.bodies[1].name) in pairs for pairs in found.values()), found
 
 
 @pytest.mark.parametrize("axis", [0, 1, 2])
