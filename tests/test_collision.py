@@ -150,8 +150,8 @@ def test_many_objects_no_missed_collision(tmp_path):
     w = load_workload(path, load_arch())
     results = w.run().results
     assert assert_no_missed_collision(w, results) >= 3
-    # each test's separation implies the next one's: a fragment's tz-box inside its object's union box;
-    # no pixel with z overlap when one object lies wholly in front of the other
+    # a pair a looser test separates, a tighter one separates too: a fragment's tz-box lies inside its
+    # object's union box; no pixel has overlapping depths when one object lies wholly in front
     found = pcs(results)
     assert found["tz_fragment"] <= found["tz_union"] <= found["depth_only"] <= found["cullide"]
     assert len(found["cullide"]) <= results["swept_box_pairs"]
