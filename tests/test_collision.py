@@ -1,0 +1,279 @@
+"""The collision workload (Nilsson12 §3) against python-fcl's exact discrete collision test at dense
+times (the meshes' vertices interpolated linearly, as the workload moves them): never a missed
+collision, on the shipped scenes and on random small scenes; every union tz-box holds the (t, z) of
+densely sampled points of its object; the toaster and ball are told apart by time only; bad input is
+one line, exit 2."""
+
+import dataclasses
+import json
+
+import fcl
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pipeline_sim.cli import main
+from pipeline_sim.config import load_arch
+from pipeline_sim.render import run_pass
+from pipeline_sim.workload import load_workload
+from workloads.apps import collision as C
+
+APP = "workloads/apps/collision"
+TIMES = np.linspace(0.0, 1.0, 201)
+
+
+def fcl_object(verts: np.ndarray, faces: np.ndarray) -> fcl.CollisionObject:
+    model = fcl.BVHModel()
+    model.beginModel(len(verts), len(faces))
+    model.addSubModel(verts, faces)
+    model.endModel()
+    return fcl.CollisionObject(model, fcl.Transform())
+
+
+def fcl_colliding(a: C.Body, b: C.Body, times=TIMES) -> bool:
+    """Whether fcl finds the two meshes in contact at any of ``times``."""
+    for t in times:
+        contacts = fcl.collide(fcl_object(a.at(t), a.faces), fcl_object(b.at(t), b.faces),
+                               fcl.CollisionRequest(), fcl.CollisionResult())
+        if contacts:
+            return True
+    return False
+
+
+def coplanar_times(p: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Times in [0, 1] at which the four points ``p + t d`` ((4, 3) each) are coplanar: the real roots
+    of the cubic det[p1 - p0, p2 - p0, p3 - p0](t), fitted exactly through four times."""
+    ts = np.array([0.0, 1 / 3, 2 / 3, 1.0])
+    det = [np.linalg.det((p[1:] + t * d[1:]) - (p[0] + t * d[0])) for t in ts]
+    coef = np.polyfit(ts, det, 3)
+    if np.all(np.abs(coef) < 1e-14):
+        return np.zeros(0)   # coplanar throughout: left to the discrete test
+    roots = np.roots(np.trim_zeros(np.where(np.abs(coef) < 1e-14, 0.0, coef), "f"))
+    real = roots[np.abs(roots.imag) < 1e-9].real
+    return real[(real >= -1e-9) & (real <= 1 + 1e-9)]
+
+
+def point_in_triangle(q: np.ndarray, tri: np.ndarray, eps: float = 1e-7) -> bool:
+    e0, e1, v = tri[1] - tri[0], tri[2] - tri[0], q - tri[0]
+    g = np.array([[e0 @ e0, e0 @ e1], [e0 @ e1, e1 @ e1]])
+    if abs(np.linalg.det(g)) < 1e-18:
+        return False
+    s, u = np.linalg.solve(g, [v @ e0, v @ e1])
+    return s >= -eps and u >= -eps and s + u <= 1 + eps and np.linalg.norm(tri[0] + s * e0 + u * e1 - q) < 1e-6
+
+
+def segments_meet(a0, a1, b0, b1, eps: float = 1e-7) -> bool:
+    da, db, r = a1 - a0, b1 - b0, a0 - b0
+    g = np.array([[da @ da, -(da @ db)], [-(da @ db), db @ db]])
+    if abs(np.linalg.det(g)) < 1e-18:
+        return False
+    s, u = np.linalg.solve(g, [-(r @ da), r @ db])
+    return -eps <= s <= 1 + eps and -eps <= u <= 1 + eps and np.linalg.norm(a0 + s * da - b0 - u * db) < 1e-6
+
+
+def exact_contact(a: C.Body, b: C.Body) -> bool:
+    """Whether the moving meshes ever touch: a vertex of one meets a triangle of the other, or an edge
+    of one an edge of the other, at a root of their coplanarity cubic (linear vertex paths), or they
+    intersect at t=0."""
+    if fcl_colliding(a, b, [0.0]):
+        return True
+    def edges(body):
+        return {tuple(sorted(e)) for f in body.faces for e in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0]))}
+    for m, n in ((a, b), (b, a)):
+        dv, dn = m.v1 - m.v0, n.v1 - n.v0
+        for v in range(len(m.v0)):
+            for f in n.faces:
+                p, d = np.vstack([m.v0[v], n.v0[f]]), np.vstack([dv[v], dn[f]])
+                if any(point_in_triangle(p[0] + t * d[0], p[1:] + t * d[1:]) for t in coplanar_times(p, d)):
+                    return True
+    da, db = a.v1 - a.v0, b.v1 - b.v0
+    for ea in edges(a):
+        for eb in edges(b):
+            p, d = np.vstack([a.v0[list(ea)], b.v0[list(eb)]]), np.vstack([da[list(ea)], db[list(eb)]])
+            if any(segments_meet(*(p + t * d)) for t in coplanar_times(p, d)):
+                return True
+    return False
+
+
+def pcs(results: dict) -> dict[str, set[tuple[str, str]]]:
+    return {m: {tuple(p) for p in v["pcs"]} for m, v in results["methods"].items()}
+
+
+def run_file(root, name: str, tmp_path) -> tuple[C.Collision, dict]:
+    path = tmp_path / name
+    path.write_text((root / APP / name).read_text())
+    w = load_workload(path, load_arch())
+    return w, w.run().results
+
+
+def assert_no_missed_collision(w: C.Collision, results: dict) -> int:
+    """Every pair fcl finds colliding is in every method's PCS; returns how many collide."""
+    found = pcs(results)
+    colliding = 0
+    for a, b in zip(*np.triu_indices(len(w.bodies), 1)):
+        ba, bb = w.bodies[a], w.bodies[b]
+        if C.swept_boxes_meet(ba, bb) and fcl_colliding(ba, bb):
+            colliding += 1
+            for m, pairs in found.items():
+                assert (ba.name, bb.name) in pairs, (m, ba.name, bb.name)
+    return colliding
+
+
+def test_colliding_pair_is_in_every_pcs(root, tmp_path):
+    w, results = run_file(root, "collide.toml", tmp_path)
+    assert assert_no_missed_collision(w, results) == 1
+    assert results["methods"]["tz_union"]["passes"] == 3 and results["methods"]["cullide"]["passes"] == 6
+
+
+def test_toaster_dodges_the_ball_in_time_only(root, tmp_path):
+    w, results = run_file(root, "toaster.toml", tmp_path)
+    toaster, ball = w.bodies
+    # never in contact (fcl's distance stays positive at every dense time) ...
+    gaps = [fcl.distance(fcl_object(toaster.at(t), toaster.faces), fcl_object(ball.at(t), ball.faces),
+                         fcl.DistanceRequest(), fcl.DistanceResult()) for t in TIMES]
+    assert min(gaps) > 0.1
+    # ... while the swept volumes overlap: a point of the ball at t=0 is inside the toaster at t=1
+    assert np.all(np.abs(ball.at(0.0).mean(axis=0) - toaster.at(1.0).mean(axis=0)) < [0.8, 0.5, 0.6])
+    found = pcs(results)
+    assert found["depth_only"] == found["cullide"] == {("toaster", "ball")}
+    assert found["tz_union"] == found["tz_fragment"] == set()
+    methods = results["methods"]
+    assert methods["depth_only"]["passes"] == 3 and methods["cullide"]["passes"] == 6  # z meets in every view
+    assert methods["tz_union"]["passes"] < 3 and methods["tz_fragment"]["passes"] < 6
+
+
+def test_many_objects_no_missed_collision(tmp_path):
+    path = tmp_path / "many.toml"
+    path.write_text('kind = "collision"\nresolution = 12\n[random]\ncount = 24\nseed = 3\nextent = 3.0\n'
+                    'radius = 0.5\ntravel = 1.5\nsubdivisions = 0\n')
+    w = load_workload(path, load_arch())
+    results = w.run().results
+    assert assert_no_missed_collision(w, results) >= 3
+    # a pair a looser test separates, a tighter one separates too: a fragment's tz-box lies inside its
+    # object's union box; no pixel has overlapping depths when one object lies wholly in front
+    found = pcs(results)
+    assert found["tz_fragment"] <= found["tz_union"] <= found["depth_only"] <= found["cullide"]
+    assert len(found["cullide"]) <= results["swept_box_pairs"]
+
+
+vec = st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3)
+speed = st.lists(st.floats(-6.0, 6.0), min_size=3, max_size=3)
+
+
+@st.composite
+def scenes(draw):
+    """Two objects near each other, moving little (long contacts), or each passing a point near the
+    origin at its own time in [0.2, 0.8], fast (brief contacts, if any)."""
+    crossing = draw(st.booleans())
+    specs = []
+    for i in range(2):
+        if crossing:
+            middle, velocity, when = np.array(draw(vec)) * 0.5, np.array(draw(speed)), draw(st.floats(0.2, 0.8))
+            start, end = list(middle - when * velocity), list(middle + (1 - when) * velocity)
+        else:
+            start, end = draw(vec), draw(vec)
+        specs.append(C.ObjectSpec(shape=draw(st.sampled_from(["icosphere", "rounded_box"])),
+                                  size=draw(st.lists(st.floats(0.2, 0.7), min_size=3, max_size=3)),
+                                  subdivisions=1, start=start, end=end,
+                                  turn=draw(st.lists(st.floats(-90, 90), min_size=3, max_size=3))))
+    return specs
+
+
+@settings(max_examples=60, deadline=None)
+@given(specs=scenes(), resolution=st.integers(2, 24))
+def test_random_pairs_never_miss_a_collision(specs, resolution):
+    w = C.Collision("random.toml", load_arch())
+    w.resolution = resolution
+    w.bodies = [C.make_body(spec, i, "random") for i, spec in enumerate(specs)]
+    assert_no_missed_collision(w, w.run().results)
+
+
+def test_exact_contact_between_dense_times_is_in_every_pcs():
+    """A ball crossing 1000 units during the shutter hits a small box between two of the 201 times:
+    fcl's dense test misses it, the exact coplanarity-cubic test finds it, and every method keeps it."""
+    ball = C.ObjectSpec(shape="icosphere", name="ball", subdivisions=0, size=[1.0, 1.0, 1.0],
+                        start=[-501.3, 0.0, 0.0], end=[498.7, 0.0, 0.0])
+    box = C.ObjectSpec(shape="rounded_box", name="box", subdivisions=0, size=[0.5, 0.5, 0.5],
+                       start=[0.0, 0.3, 0.0], end=[0.0, 0.3, 0.2], turn=[10.0, 20.0, 30.0])
+    w = C.Collision("fast.toml", load_arch())
+    w.resolution = 16
+    w.bodies = [C.make_body(spec, i, "fast") for i, spec in enumerate((ball, box))]
+    assert exact_contact(*w.bodies) and not fcl_colliding(*w.bodies)
+    found = pcs(w.run().results)
+    assert all(("ball", "box") in pairs for pairs in found.values()), found
+
+
+@settings(max_examples=30, deadline=None)
+@given(specs=scenes(), resolution=st.integers(2, 24))
+def test_random_small_pairs_never_miss_an_exact_contact(specs, resolution):
+    """Small meshes (an icosahedron, a rounded box of one cell per face) against the exact continuous
+    test: vertex-triangle and edge-edge contacts at the roots of their coplanarity cubics."""
+    w = C.Collision("random.toml", load_arch())
+    w.resolution = resolution
+    w.bodies = [C.make_body(dataclasses.replace(spec, subdivisions=0), i, "random") for i, spec in enumerate(specs)]
+    if C.swept_boxes_meet(*w.bodies) and exact_contact(*w.bodies):
+        found = pcs(w.run().results)
+        assert all((w.bodies[0].name, w.bodies[1].name) in pairs for pairs in found.values()), found
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_union_box_holds_every_point_of_the_object(root, tmp_path, axis):
+    """Dense (t, barycentric) samples of each triangle of both objects, projected by hand: the pixel
+    each falls in holds its (t, z) in its object's union box."""
+    w = load_workload(root / APP / "collide.toml", load_arch())
+    a, b = w.bodies
+    res = run_pass(C.box_pass(a, b, axis, 24, load_arch(), "p"))
+    lo, hi = C.view_box(a, b)
+    i, j = (axis + 1) % 3, (axis + 2) % 3
+    n = 24
+    u, v = np.meshgrid(np.linspace(0, 1, 9), np.linspace(0, 1, 9))
+    keep = u + v <= 1
+    bary = np.stack([1 - u[keep] - v[keep], u[keep], v[keep]], axis=1)
+    checked = 0
+    for body, target in ((a, "a"), (b, "b")):
+        box = res.images[target][0]
+        for t in np.linspace(0, 1, 41):
+            pts = np.einsum("kc,fcd->fkd", bary, body.at(t)[body.faces]).reshape(-1, 3)
+            px = np.floor((pts[:, i] - lo[i]) / (hi[i] - lo[i]) * n).astype(int)
+            py = np.floor((hi[j] - pts[:, j]) / (hi[j] - lo[j]) * n).astype(int)   # row 0 at the top
+            z = (pts[:, axis] - lo[axis]) / (hi[axis] - lo[axis]) * 2 - 1
+            cell = box[py, px]
+            eps = 1e-5
+            assert np.all(cell[:, 0] <= t + eps) and np.all(t - eps <= cell[:, 2]), (target, t)
+            assert np.all(cell[:, 1] <= z + eps) and np.all(z - eps <= cell[:, 3]), (target, t)
+            checked += len(pts)
+    assert checked > 100_000
+
+
+@pytest.mark.parametrize("text, message", [
+    ('resolution = 0\n[[objects]]\nshape = "icosphere"\n[[objects]]\nshape = "icosphere"\n', "resolution"),
+    ('[[objects]]\nshape = "icosphere"\n[[objects]]\nname = "empty"\nshape = "mesh"\n',
+     "objects[1] ('empty'): the object has no triangles"),
+    ('[[objects]]\nshape = "icosphere"\n[[objects]]\nshape = "icosphere"\nend = [nan, 0.0, 0.0]\n',
+     "objects[1].end"),
+    ('[[objects]]\nshape = "icosphere"\n', "at least two objects"),
+    ('[[objects]]\nshape = "icosphere"\nname = "a"\n[[objects]]\nshape = "icosphere"\nname = "a"\n',
+     "names must be distinct, 'a' is given twice"),
+    ('[[objects]]\nshape = "icosphere"\nname = "a/b"\n[[objects]]\nshape = "icosphere"\n',
+     "objects[0] ('a/b'): name: use letters"),
+    ('[[objects]]\nshape = "icosphere"\n[[objects]]\nshape = "icosphere"\nstart = [1e300, 0.0, 0.0]\n',
+     "objects[1] ('object1'): a vertex reaches beyond"),
+])
+def test_bad_input_is_one_line_exit_2(tmp_path, capsys, text, message):
+    path = tmp_path / "bad.toml"
+    path.write_text('kind = "collision"\n' + text)
+    assert main(["run", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err and "bad.toml" in err, err
+    assert not (tmp_path / "out").exists()
+
+
+def test_results_json_is_strict_and_lists_every_method(root, tmp_path):
+    out = tmp_path / "run"
+    assert main(["run", str(root / APP / "toaster.toml"), "--out", str(out), "--quiet"]) == 0
+    results = json.loads((out / "results.json").read_text(), parse_constant=lambda c: pytest.fail(c))
+    for m in C.METHODS:
+        row = results["methods"][m]
+        assert row["pcs_size"] == len(row["pcs"]) and row["passes"] >= 1 and row["pixels_shaded"] > 0
+        assert row["cycles"] > 0
