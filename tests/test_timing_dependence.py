@@ -135,12 +135,12 @@ def _zmax_by_triangle_batch(scene, arch, refresh, monkeypatch):
     run = zc.ZCull.run
     tpb = SimOptions().triangles_per_batch
 
-    def spy(self, tiles):
+    def spy(self, tiles, *query):
         if len(tiles["tri"]):
             batch = int(tiles["tri"][0]) // tpb  # one screen region: batches are consecutive ids
             assert int(tiles["tri"][-1]) // tpb == batch  # a z-cull batch holds one triangle batch's tiles
             seen.setdefault(batch, []).append(self.zmax.copy())
-        return run(self, tiles)
+        return run(self, tiles, *query)
 
     monkeypatch.setattr(zc.ZCull, "run", spy)
     result = render_scene(scene, arch, zcull_refresh=refresh)
