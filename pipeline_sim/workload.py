@@ -147,9 +147,14 @@ class Workload:
         ``pass.*`` and ``simulation.*`` ones on every pass it runs (``compare``: one per algorithm)."""
         from pipeline_sim.config import pass_settings
 
-        other = copy.copy(self)
+        other = self._unrun_copy()
         other.arch = pass_settings(overrides, self.arch, where=where)["arch"]  # checks them all, too
         other.settings = self.settings + [o for o in overrides if _is_pass_setting(o)]
+        return other
+
+    def _unrun_copy(self) -> "Workload":
+        """A copy to change settings on: its own pass options and no passes run yet."""
+        other = copy.copy(self)
         other.pass_options = dict(self.pass_options)
         other.states = []
         return other
@@ -157,11 +162,10 @@ class Workload:
     def accuracy_settings(self) -> tuple:
         """The ``accuracy`` settings it runs with (its hardware's, and its pass settings' over the
         defaults): runs whose ones agree sample the same scene the same way."""
-        from pipeline_sim.config import pass_settings, settings_of
-        from pipeline_sim.settings import ACCURACY
+        from pipeline_sim.config import pass_settings
 
         s = pass_settings(self.settings, self.arch)
-        return tuple(sorted(settings_of(s["arch"], s["state"], s["simulation"], (ACCURACY,)).items()))
+        return _accuracy_key(s["arch"], s["state"], s["simulation"])
 
     def run_passes(self, passes: list[Any], progress: Progress = None) -> dict[str, Any]:
         """Run ``passes`` in order (a pass's ``textures`` may name earlier passes) with
@@ -176,6 +180,14 @@ class Workload:
         passes = [prepared(p) for p in passes]
         self.states.extend(passes)
         return run_passes(passes, progress=progress)
+
+
+def _accuracy_key(arch: ArchConfig, state: Any, simulation: Any) -> tuple:
+    """The ``accuracy`` settings of a hardware, pass state and simulation options, sorted, as a key."""
+    from pipeline_sim.config import settings_of
+    from pipeline_sim.settings import ACCURACY
+
+    return tuple(sorted(settings_of(arch, state, simulation, (ACCURACY,)).items()))
 
 
 def _is_pass_setting(override: str) -> bool:
@@ -240,18 +252,12 @@ class SceneWorkload(Workload):
     def with_settings(self, overrides: list[str], where: str = "--set") -> "SceneWorkload":
         from pipeline_sim.config import apply_settings
 
-        other = copy.copy(self)
+        other = self._unrun_copy()
         other.scene, other.arch = apply_settings(self.scene, self.arch, overrides, where)
-        other.pass_options = dict(self.pass_options)
-        other.states = []
         return other
 
     def accuracy_settings(self) -> tuple:
-        from pipeline_sim.config import settings_of
-        from pipeline_sim.settings import ACCURACY
-
-        return tuple(sorted(settings_of(self.arch, self.scene.pass_state, self.scene.simulation,
-                                        (ACCURACY,)).items()))
+        return _accuracy_key(self.arch, self.scene.pass_state, self.scene.simulation)
 
     def check(self, variants: list["Workload"] | None = None, *, reference_spp: int | None = None) -> str:
         from pipeline_sim.preflight import validate_run
