@@ -43,7 +43,7 @@ from pipeline_sim.errors import UserError
 from pipeline_sim.output import finite_or_none
 from pipeline_sim.schema import key
 from pipeline_sim.settings import FORBID, Text, count, number
-from pipeline_sim.shaders import append_record
+from pipeline_sim.shaders import append_record, fetch
 from pipeline_sim.workload import Workload, WorkloadResult
 
 PATTERNS = ("net", "sobol", "stratified", "random")
@@ -192,3 +192,505 @@ def pass_work(result) -> dict[str, int]:
             "samples_covered": result.counter("sample_tester", "samples_covered"),
             "cycles": int(result.timing.frame_cycles)}
 
+# ------------------------------------------------------------------------------------------------------
+# Integration over a torus (Nilsson12 §5, Fig. 9)
+
+
+def reference_torus(major: float, minor: float) -> dict[str, float]:
+    """The torus's volume and the integrals of x^2 + y^2 and of z^2 over it (axis z), in closed form."""
+    R, r = major, minor
+    return {"volume": 2.0 * math.pi**2 * R * r**2, "xy2": 2.0 * math.pi**2 * R * r**2 * (R**2 + 0.75 * r**2),
+            "z2": math.pi**2 * R * r**4 / 2.0}
+
+
+def torus_slab_radii(major: float, minor: float, z0: float, z1: float) -> tuple[float, float, float, float]:
+    """The radii at z0 and z1 of an outer and an inner circle varying linearly in z between them, such
+    that for every z in [z0, z1] the torus's annulus R - h(z) <= |xy| <= R + h(z), h(z) = sqrt(r^2 - z^2),
+    lies between them: h is concave, so its chord raised by the chord's largest gap (where h' equals the
+    chord's slope) bounds it from above. Returns (outer0, outer1, inner0, inner1)."""
+    r = minor
+
+    def h(z):
+        return math.sqrt(max(r * r - z * z, 0.0))
+
+    m = (h(z1) - h(z0)) / (z1 - z0)
+    z_star = min(max(-m * r / math.sqrt(1.0 + m * m), z0), z1)
+    gap = max(h(z_star) - (h(z0) + m * (z_star - z0)), 0.0) + 1e-9 * r
+    h0, h1 = h(z0) + gap, h(z1) + gap
+    return major + h0, major + h1, major - h0, major - h1
+
+
+def torus_prisms(s: Settings) -> tuple[list[tuple[np.ndarray, np.ndarray, float, float]], float, int]:
+    """The tapered prisms bounding the torus, per slab (p0, p1, t_lo, t_hi): each slab's annulus bound is a
+    ring between a regular polygon around its outer circle and one inside its inner circle, two moving
+    triangles per side, whose vertices move radially so that at the slab's bounds they lie on the circles
+    of :func:`torus_slab_radii` (extrapolated linearly to t = 0 and 1; shared vertex paths). Also the
+    pixels per world unit and the screen side."""
+    n, R, r = s.segments, s.major, s.minor
+    bounds = slab_bounds(s.slabs)
+    radii = [torus_slab_radii(R, r, -r + 2.0 * r * bounds[k], -r + 2.0 * r * bounds[k + 1]) for k in range(s.slabs)]
+    if min(min(x[2], x[3]) for x in radii) <= 0.0:
+        raise UserError(f"minor: a torus of minor radius {r} is too thick for major radius {R} at {s.slabs} slabs "
+                        "(the bound's inner circle shrinks to its axis)")
+    extent = max(max(x[0], x[1]) for x in radii) / math.cos(math.pi / n) * 1.01
+    width = s.resolution
+    scale = width / (2.0 * extent)
+    angles = 2.0 * math.pi * np.arange(n + 1) / n
+    ring = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    i = np.arange(n)
+    prisms = []
+    for k, (o0, o1, i0, i1) in enumerate(radii):
+        ends = []
+        for outer, inner in ((o0, i0), (o1, i1)):
+            out = ring * outer / math.cos(math.pi / n)
+            inn = ring * inner
+            tri = np.concatenate([np.stack([out[i], out[i + 1], inn[i + 1]], axis=1),
+                                  np.stack([out[i], inn[i + 1], inn[i]], axis=1)])
+            ends.append(np.stack([tri[..., 0] * scale + width / 2.0, width / 2.0 - tri[..., 1] * scale], axis=-1))
+        t0, t1 = bounds[k], bounds[k + 1]
+        step = (ends[1] - ends[0]) / (t1 - t0)
+        prisms.append((ends[0] - t0 * step, ends[0] + (1.0 - t0) * step, t0, t1))
+    return prisms, scale, width
+
+
+@nb.njit
+def torus_shader(inputs, params, textures, out, append):
+    """Nilsson12 §5, Fig. 9: a sample of the bounding prisms inside the torus adds (1, x^2 + y^2, z^2,
+    (x^2 + y^2)^2, z^4) (the integrands and their squares, for the standard errors), else zeros.
+    params: pixels per unit, the screen centre, R, r, then each slab's upper t bound."""
+    scale, centre, R, r = params[0], params[1], params[2], params[3]
+    for i in range(inputs.shape[1]):
+        for c in range(5):
+            out[i, c] = 0.0
+        t = inputs[IN_T, i]
+        if not _in_slab(t, params[4 + int(inputs[IN_OBJECT, i])]):
+            continue
+        x = (np.float64(inputs[IN_X, i]) - centre) / scale
+        y = (centre - np.float64(inputs[IN_Y, i])) / scale
+        z = -r + 2.0 * r * np.float64(t)
+        q = x * x + y * y
+        if (math.sqrt(q) - R) ** 2 + z * z < r * r:
+            out[i, 0] = 1.0
+            out[i, 1] = q
+            out[i, 2] = z * z
+            out[i, 3] = q * q
+            out[i, 4] = z**4
+
+
+def integrate_torus(s: Settings, arch, run_passes) -> tuple[dict, dict]:
+    """Run the torus pass; its estimates with standard errors, the closed forms and the work."""
+    prisms, scale, width = torus_prisms(s)
+    draws = [prism_draw(p0, p1, width, width, t_lo=lo, t_hi=hi, objects=np.full(len(p0), k))
+             for k, (p0, p1, lo, hi) in enumerate(prisms)]
+    params = np.concatenate([[scale, width / 2.0, s.major, s.minor], [hi for _, _, _, hi in prisms]])
+    passes = run_passes([sampler_pass(draws, s.spp, s.seed, s.pattern, torus_shader, params, arch, "torus",
+                                      channels=5)])
+    result = passes["torus"]
+    sums = result.sample_data["sum"].reshape(-1, 5).sum(axis=0, dtype=np.float64)
+    density = s.spp * scale**2 / (2.0 * s.minor)  # samples per unit world volume
+    in_box = s.spp * width * width  # samples of the screen over the whole shutter
+    exact = reference_torus(s.major, s.minor)
+    bound = sum(reference_prism_volume(p0, p1, lo, hi).sum() for p0, p1, lo, hi in prisms) / density * s.spp
+    out = {"points_inside": int(sums[0]), "density": density, "bound_volume": bound, "triangles": sum(d.n for d in draws)}
+    for name, total, square in (("volume", sums[0], sums[0]), ("xy2", sums[1], sums[3]), ("z2", sums[2], sums[4])):
+        se = math.sqrt(max(square - total * total / in_box, 0.0)) / density
+        estimate = total / density
+        out.update({name: estimate, f"{name}_se": se, f"{name}_exact": exact[name],
+                    f"{name}_rel_error": (estimate - exact[name]) / exact[name],
+                    f"{name}_z": (estimate - exact[name]) / se if se > 0 else None})
+    out.update(pass_work(result))
+    return passes, out
+
+
+# ------------------------------------------------------------------------------------------------------
+# Maximal Poisson-disk sets by accelerated dart throwing (Nilsson12 §5, Fig. 11)
+
+
+def base_grid(dimension: int, radius: float) -> int:
+    """Cells per axis of the unit cube's base grid: the largest cells whose diagonal is at most r, so one
+    point covers the cell it lies in and a cell holds at most one point."""
+    return int(math.ceil(math.sqrt(dimension) / radius))
+
+
+@nb.njit(cache=True)
+def _cell(p: np.ndarray, n0: int, nz: int) -> tuple[int, int, int]:
+    return min(int(p[0] * n0), n0 - 1), min(int(p[1] * n0), n0 - 1), min(int(p[2] * n0), nz - 1)
+
+
+@nb.njit(cache=True)
+def accept_candidates(candidates, points, count, grid, radius):
+    """The compute step's conflict resolution (Nilsson12 §5): each candidate (rows of ``candidates``, in
+    the order given) joins ``points`` (``count[0]`` of them so far) unless a point lies closer than
+    ``radius`` (found through ``grid``, one point index per base cell, -1 for none). Returns the number
+    accepted."""
+    n0, nz = grid.shape[0], grid.shape[2]
+    reach = int(math.ceil(radius * n0))
+    r2 = radius * radius
+    accepted = 0
+    for j in range(candidates.shape[0]):
+        p = candidates[j]
+        cx, cy, cz = _cell(p, n0, nz)
+        ok = grid[cx, cy, cz] < 0
+        for x in range(max(cx - reach, 0), min(cx + reach + 1, n0)):
+            for y in range(max(cy - reach, 0), min(cy + reach + 1, n0)):
+                for z in range(max(cz - reach, 0), min(cz + reach + 1, nz)):
+                    k = grid[x, y, z]
+                    if ok and k >= 0:
+                        d = points[k] - p
+                        ok = d[0] * d[0] + d[1] * d[1] + d[2] * d[2] >= r2
+        if ok:
+            points[count[0]] = p
+            grid[cx, cy, cz] = count[0]
+            count[0] += 1
+            accepted += 1
+    return accepted
+
+
+@nb.njit(cache=True)
+def _covered(origin, side, dimension, points, grid, radius):
+    """Whether one point lies within ``radius`` of every corner of the cell [origin, origin + side)^d (the
+    ball being convex, it then covers the cell)."""
+    n0, nz = grid.shape[0], grid.shape[2]
+    lo = np.empty(3, np.int64)
+    hi = np.empty(3, np.int64)
+    for a in range(3):
+        n = n0 if a < 2 else nz
+        lo[a] = max(int((origin[a] - radius) * n0), 0)
+        hi[a] = min(int((origin[a] + side + radius) * n0), n - 1)
+    if dimension == 2:
+        lo[2], hi[2] = 0, 0
+    for x in range(lo[0], hi[0] + 1):
+        for y in range(lo[1], hi[1] + 1):
+            for z in range(lo[2], hi[2] + 1):
+                k = grid[x, y, z]
+                if k >= 0:
+                    far = 0.0
+                    for a in range(dimension):
+                        e = max(abs(points[k, a] - origin[a]), abs(points[k, a] - origin[a] - side))
+                        far += e * e
+                    if far <= radius * radius:
+                        return True
+    return False
+
+
+@nb.njit(cache=True)
+def split_voids(levels, coords, dimension, points, grid, radius, max_level):
+    """The compute step's void update (Nilsson12 §5): a void (level l, integer corner ``coords`` in cells
+    of side 1 / (n0 2^l)) that one point covers is dropped; one that is not is split into its 2^d
+    children, of which those not covered stay active; at ``max_level`` it is dropped instead and counted.
+    Returns the new levels and coords, and the number and volume of voids dropped uncovered."""
+    n0 = grid.shape[0]
+    out_l = np.empty(levels.shape[0] * (1 << dimension), np.int64)
+    out_c = np.empty((levels.shape[0] * (1 << dimension), 3), np.int64)
+    m = 0
+    dropped = 0
+    dropped_volume = 0.0
+    origin = np.zeros(3)
+    for v in range(levels.shape[0]):
+        side = 1.0 / (n0 * (1 << levels[v]))
+        for a in range(dimension):
+            origin[a] = coords[v, a] * side
+        if _covered(origin, side, dimension, points, grid, radius):
+            continue
+        if levels[v] >= max_level:
+            dropped += 1
+            dropped_volume += side**dimension
+            continue
+        for child in range(1 << dimension):
+            for a in range(dimension):
+                out_c[m, a] = 2 * coords[v, a] + ((child >> a) & 1)
+                origin[a] = out_c[m, a] * side / 2.0
+            if not _covered(origin, side / 2.0, dimension, points, grid, radius):
+                out_l[m] = levels[v] + 1
+                if dimension == 2:
+                    out_c[m, 2] = 0
+                m += 1
+    return out_l[:m].copy(), out_c[:m].copy(), dropped, dropped_volume
+
+
+def void_atlas(levels: np.ndarray, s: Settings, rng: np.random.Generator) -> dict:
+    """The active voids as squares of one size (all voids scaled alike: ``candidates`` expected samples
+    each, Nilsson12 §5), each at a random displacement within its slot of an atlas; in 3D, the atlas has
+    ``layers`` slabs in t, one draw each. Returns the draws' geometry and what maps samples back."""
+    n = len(levels)
+    layers = s.layers if s.dimension == 3 else 1
+    per_layer = -(-n // layers)
+    cols = int(math.ceil(math.sqrt(per_layer)))
+    rows = -(-per_layer // cols)
+    side = math.sqrt(s.candidates * layers / s.spp)  # pixels: spp * side^2 / layers samples expected
+    slot = side + 1.0
+    j = np.arange(n)
+    layer, jj = j // per_layer, j % per_layer
+    corner = np.stack([jj % cols, jj // cols], axis=1) * slot + rng.random((n, 2))
+    square = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], float) * side
+    bounds = slab_bounds(layers)
+    return {"corner": corner, "side": side, "layer": layer, "bounds": bounds, "layers": layers,
+            "width": max(int(math.ceil(cols * slot)), 1), "height": max(int(math.ceil(rows * slot)), 1),
+            "triangles": (corner[:, None, None, :] + square[None]).reshape(-1, 3, 2)}
+
+
+def poisson_disk(s: Settings, arch, run_passes) -> tuple[dict, dict, np.ndarray, pd.DataFrame]:
+    """Dart throwing to a maximal Poisson-disk set of the unit cube (Nilsson12 §5): per round, the active
+    voids rasterized as an atlas (depth test off, candidates appended), the candidates accepted greedily
+    in a random order, the voids split; until no void remains. Returns the passes, the results, the
+    points (N, d) and one row per round."""
+    rng = np.random.default_rng(s.seed)
+    d = s.dimension
+    n0 = base_grid(d, s.radius)
+    grid = np.full((n0, n0, n0 if d == 3 else 1), -1, np.int64)
+    points = np.zeros((grid.size, 3))
+    count = np.zeros(1, np.int64)
+    idx = np.indices((n0,) * d).reshape(d, -1).T
+    levels = np.zeros(len(idx), np.int64)
+    coords = np.zeros((len(idx), 3), np.int64)
+    coords[:, :d] = idx
+    passes, rows = {}, []
+    dropped, dropped_volume = 0, 0.0
+    while len(levels):
+        atlas = void_atlas(levels, s, rng)
+        tri_void = np.repeat(np.arange(len(levels)), 2)
+        draws = []
+        for layer in range(atlas["layers"]):
+            mine = atlas["layer"][tri_void] == layer
+            if mine.any():
+                tri = atlas["triangles"][mine]
+                draws.append(prism_draw(tri, tri, atlas["width"], atlas["height"], t_lo=atlas["bounds"][layer],
+                                        t_hi=atlas["bounds"][layer + 1], objects=tri_void[mine]))
+        capacity = int(3 * s.candidates * len(levels)) + 1024
+        name = f"round_{len(rows):02d}"
+        params = atlas["bounds"][atlas["layer"] + 1]
+        result = run_passes([sampler_pass(draws, s.spp, s.seed + len(rows), s.pattern, append_shader, params, arch,
+                                          name, capacity=capacity)])[name]
+        passes[name] = result
+        records = result.append.records.astype(np.float64)
+        void = records[:, 5].astype(np.int64)
+        local = np.zeros((len(records), 3))
+        local[:, :2] = (records[:, :2] - atlas["corner"][void]) / atlas["side"]
+        if d == 3:
+            lo, hi = atlas["bounds"][atlas["layer"][void]], atlas["bounds"][atlas["layer"][void] + 1]
+            local[:, 2] = (records[:, 2] - lo) / (hi - lo)
+        side = 1.0 / (n0 * (2.0 ** levels[void]))
+        candidates = (coords[void] + np.clip(local, 0.0, 1.0 - 1e-12)) * side[:, None]
+        candidates[:, d:] = 0.0
+        accepted = accept_candidates(candidates[rng.permutation(len(candidates))], points, count, grid, s.radius)
+        voids = len(levels)
+        levels, coords, lost, lost_volume = split_voids(levels, coords, d, points, grid, s.radius, s.max_level)
+        dropped += lost
+        dropped_volume += lost_volume
+        rows.append({"round": len(rows), "voids": voids, "level": int(levels.min()) if len(levels) else s.max_level,
+                     "candidates": len(records), "overflow": int(result.append.overflow), "accepted": accepted,
+                     "points": int(count[0]), **pass_work(result)})
+    table = pd.DataFrame(rows)
+    pts = points[:count[0], :d].copy()
+    ball = math.pi * (s.radius / 2.0) ** 2 if d == 2 else 4.0 / 3.0 * math.pi * (s.radius / 2.0) ** 3
+    results = {"points": len(pts), "rounds": len(rows), "coverage": len(pts) * ball,
+               "candidates_appended": int(table.candidates.sum()), "accepted": int(table.accepted.sum()),
+               "overflow": int(table.overflow.sum()), "dropped_voids": dropped, "dropped_volume": dropped_volume,
+               "samples_tested": int(table.samples_tested.sum()), "samples_covered": int(table.samples_covered.sum()),
+               "cycles": int(table.cycles.sum())}
+    return passes, results, pts, table
+
+
+def reference_poisson(dimension: int, radius: float, seed: int) -> tuple[np.ndarray, float]:
+    """scipy's Poisson-disk sampler (Bridson's algorithm, filled until no candidate fits) on the unit cube,
+    and its wall time."""
+    from scipy.stats import qmc
+
+    start = time.perf_counter()
+    pts = qmc.PoissonDisk(dimension, radius=radius, seed=seed).fill_space()
+    return pts, time.perf_counter() - start
+
+
+# ------------------------------------------------------------------------------------------------------
+# Adaptive white noise under a density height field (Nilsson12 §5, Fig. 12)
+
+
+def load_density(image: str, folder: Path, resolution: int) -> np.ndarray:
+    """An image's luminance, ``resolution`` pixels high, scaled to a largest value of 1 (float32): a
+    scikit-image sample image by name, or an image file relative to ``folder``."""
+    import skimage.data
+    from skimage.color import rgb2gray
+    from skimage.transform import resize
+
+    if "." in image:
+        from PIL import Image
+
+        path = folder / image
+        if not path.is_file():
+            raise UserError(f"image: no file {path}")
+        pixels = np.asarray(Image.open(path).convert("RGB"))
+    elif image in skimage.data.__all__ and image not in ("download_all", "lfw_subset", "stereo_motorcycle"):
+        pixels = getattr(skimage.data, image)()
+    else:
+        raise UserError(f"image: '{image}' is neither an image file nor a scikit-image sample image")
+    gray = rgb2gray(pixels[..., :3]) if pixels.ndim == 3 else pixels.astype(float)
+    h, w = gray.shape
+    rho = resize(gray.astype(float), (resolution, max(int(round(resolution * w / h)), 1)), anti_aliasing=True)
+    if not rho.max() > 0.0:
+        raise UserError(f"image: '{image}' is black: no density to follow")
+    return (np.clip(rho, 0.0, None) / rho.max()).astype(np.float32)
+
+
+def density_cells(rho: np.ndarray, cell: int, levels: int) -> dict[int, np.ndarray]:
+    """The bound under the height field: per cell of ``cell`` x ``cell`` pixels, its highest density
+    rounded up to one of ``levels`` clip-plane heights; per height (index into slab_bounds(levels)), the
+    corners (N, 2) of its cells. Cells of zero density are left out."""
+    h, w = rho.shape
+    bounds = slab_bounds(levels)
+    cells: dict[int, list] = {}
+    for y in range(0, h, cell):
+        for x in range(0, w, cell):
+            top = rho[y:y + cell, x:x + cell].max()
+            if top > 0.0:
+                cells.setdefault(int(np.searchsorted(bounds, top)), []).append((x, y))
+    return {k: np.array(v, float) for k, v in sorted(cells.items())}
+
+
+@nb.njit
+def density_shader(inputs, params, textures, out, append):
+    """Nilsson12 §5, Fig. 12: a sample (x, y, t) under the height field (t below the density of its pixel,
+    ``textures[0]``) is appended (``RECORD``); the others are rejected."""
+    rho = textures[0]
+    record = np.empty(7, np.float32)
+    for i in range(inputs.shape[1]):
+        x, y, t = inputs[IN_X, i], inputs[IN_Y, i], inputs[IN_T, i]
+        inside = t < fetch(rho, x, y, 0)
+        out[i, 0] = 1.0 if inside else 0.0
+        if inside:
+            record[0], record[1], record[2], record[3], record[4] = x, y, t, inputs[IN_U, i], inputs[IN_V, i]
+            record[5], record[6] = inputs[IN_OBJECT, i], inputs[IN_SAMPLE, i]
+            append_record(append, record)
+
+
+def adaptive_white_noise(s: Settings, rho: np.ndarray, arch, run_passes) -> tuple[dict, dict, np.ndarray]:
+    """Samples under the height field (x, y, rho(x, y)), t the height, projected on (x, y): one draw per
+    clip-plane height of the cells bounded by it (two static triangles per cell). Returns the passes, the
+    results and the points (N, 2), in pixels."""
+    from scipy import stats
+
+    h, w = rho.shape
+    bounds = slab_bounds(s.levels)
+    square = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], float) * s.cell
+    draws = []
+    for level, corners in density_cells(rho, s.cell, s.levels).items():
+        tri = np.minimum((corners[:, None, None, :] + square[None]).reshape(-1, 3, 2), [w, h])
+        draws.append(prism_draw(tri, tri, w, h, t_hi=bounds[level], objects=np.full(len(tri), level)))
+    expected = s.spp * float(rho.sum(dtype=np.float64))
+    capacity = int(expected + 6.0 * math.sqrt(expected)) + 1024
+    passes = run_passes([sampler_pass(draws, s.spp, s.seed, s.pattern, density_shader, np.zeros(1), arch, "density",
+                                      capacity=capacity, textures=(rho[..., None],))])
+    result = passes["density"]
+    pts = result.append.records[:, :2].astype(np.float64)
+    observed = block_sums(np.histogram2d(pts[:, 1], pts[:, 0], bins=(h, w), range=((0, h), (0, w)))[0], 8)
+    # per pixel, spp samples each under the height field with probability rho: binomial counts
+    mean = block_sums(s.spp * rho.astype(np.float64), 8)
+    var = block_sums(s.spp * rho.astype(np.float64) * (1.0 - rho), 8)
+    keep = var > 0
+    chi2 = float(((observed[keep] - mean[keep]) ** 2 / var[keep]).sum())
+    bound = sum(len(c) * s.cell**2 * bounds[k] for k, c in density_cells(rho, s.cell, s.levels).items())
+    results = {"points": len(pts), "expected_points": expected, "points_z": (len(pts) - expected) / math.sqrt(expected),
+               "overflow": int(result.append.overflow), "bound_volume": bound, "density_volume": float(rho.sum()),
+               "chi2_blocks": int(keep.sum()), "chi2": chi2,
+               "chi2_pvalue": float(stats.chi2.sf(chi2, int(keep.sum()))), **pass_work(result)}
+    return passes, results, pts
+
+
+def block_sums(a: np.ndarray, n: int) -> np.ndarray:
+    """Sums of ``a`` over an n x n grid of blocks (rows and columns cut as evenly as they divide)."""
+    rows = np.arange(a.shape[0]) * n // a.shape[0]
+    cols = np.arange(a.shape[1]) * n // a.shape[1]
+    out = np.zeros((n, n))
+    np.add.at(out, (rows[:, None], cols[None, :]), a)
+    return out.ravel()
+
+
+# ------------------------------------------------------------------------------------------------------
+# The workload kind
+
+
+def plot_points(points: np.ndarray, extent: tuple[float, float], title: str, radius: float | None = None):
+    """A figure of a point set (x right, y down as on screen; a 3D set seen along z, coloured by z)."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6, 6 * extent[1] / extent[0]))
+    ax = fig.add_subplot()
+    size = 2.0 if radius is None else max((72.0 * 6.0 * radius / extent[0]) ** 2 / 4.0, 0.5)
+    colour = points[:, 2] if points.shape[1] == 3 else "k"
+    ax.scatter(points[:, 0], points[:, 1], s=size, c=colour, cmap="viridis", linewidths=0)
+    ax.set_xlim(0, extent[0])
+    ax.set_ylim(extent[1], 0)
+    ax.set_aspect("equal")
+    ax.set_title(title)
+    fig.tight_layout()
+    return fig
+
+
+class Sampling(Workload):
+    """The kind ``sampling``: the rasterizer as a sampler (Nilsson12 §5), by ``method``."""
+
+    file_schema = Settings
+
+    @classmethod
+    def load(cls, path, data: Settings, arch, image: dict[str, int]) -> "Sampling":
+        other = sorted(set(image) - {"spp", "seed"})
+        if other:
+            raise UserError(f"{path}: a sampling workload takes no image setting {', '.join(other)}; set its "
+                            "resolution in the file")
+        self = cls(path, arch)
+        self.settings_file = dataclasses.replace(data, **image)
+        self.text = self.path.read_bytes()
+        return self
+
+    def check(self, variants=None, *, reference_spp=None) -> str:
+        from pipeline_sim.sampling import check_spp
+
+        for v in variants or [self]:
+            s = v.settings_file
+            check_spp(s.pattern, s.spp, 64, f"{v.path}: ")
+            if s.method == "torus":
+                if s.minor >= s.major:
+                    raise UserError(f"{v.path}: minor: the minor radius {s.minor} must be less than the major "
+                                    f"radius {s.major}")
+                torus_prisms(s)
+            elif s.method == "density":
+                load_density(s.image, v.path.parent, s.resolution)
+        s = self.settings_file
+        what = {"torus": f"a torus (R {s.major}, r {s.minor}) in {s.slabs} slabs of {2 * s.segments} prisms",
+                "poisson": f"a maximal Poisson-disk set in {s.dimension}D, radius {s.radius}",
+                "density": f"white noise following the luminance of {s.image}"}[s.method]
+        return f"{what}, {s.spp} spp ({s.pattern})"
+
+    def run(self, progress=None) -> WorkloadResult:
+        s = self.settings_file
+
+        def run_passes(passes):
+            return self.run_passes(passes, progress)
+
+        start = time.perf_counter()
+        if s.method == "torus":
+            passes, results = integrate_torus(s, self.arch, run_passes)
+            return WorkloadResult(passes, results={k: finite_or_none(v) for k, v in results.items()})
+        if s.method == "poisson":
+            passes, results, pts, table = poisson_disk(s, self.arch, run_passes)
+            results["wall_time_s"] = time.perf_counter() - start
+            ref, ref_time = reference_poisson(s.dimension, s.radius, s.seed)
+            results.update({"scipy_points": len(ref), "scipy_wall_time_s": ref_time,
+                            "points_vs_scipy": len(pts) / len(ref)})
+            fig = plot_points(pts, (1.0, 1.0), f"{len(pts)} points, radius {s.radius}", s.radius)
+            return WorkloadResult(passes, results={k: finite_or_none(v) for k, v in results.items()},
+                                  tables={"rounds": table}, arrays={"points": pts}, figures={"points": fig})
+        rho = load_density(s.image, self.path.parent, s.resolution)
+        passes, results, pts = adaptive_white_noise(s, rho, self.arch, run_passes)
+        fig = plot_points(pts, (rho.shape[1], rho.shape[0]), f"{len(pts)} points following {s.image}")
+        return WorkloadResult(passes, results={k: finite_or_none(v) for k, v in results.items()},
+                              arrays={"points": pts, "density": rho}, figures={"points": fig})
+
+    def resolved(self) -> dict:
+        return {**super().resolved(), "settings": dataclasses.asdict(self.settings_file)}
+
+    @property
+    def digest(self) -> str:
+        return hashlib.sha256(self.text).hexdigest()
+
+
+WORKLOAD = Sampling
