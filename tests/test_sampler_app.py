@@ -224,3 +224,20 @@ def test_bad_torus_is_one_line(tmp_path):
     f.write_text('kind = "sampling"\nmethod = "torus"\nmajr = 1.0\n')
     with pytest.raises(UserError, match=r"did you mean 'major'"):
         load_workload(f, ARCH)
+
+
+def test_the_doc_example_runs_as_written():
+    """docs/sampling-app.md's example runs and prints its count."""
+    import contextlib
+    import io
+    import re
+    from pathlib import Path
+
+    doc = Path(__file__).resolve().parent.parent / "docs" / "sampling-app.md"
+    (block,) = re.findall(r"```python\n(.*?)```", doc.read_text(), flags=re.S)
+    printed = io.StringIO()
+    scope: dict = {"__name__": "sampling_example"}
+    with contextlib.redirect_stdout(printed):
+        exec(compile(block, str(doc), "exec"), scope)
+    assert "samples appended" in printed.getvalue()
+    assert set(scope["records"][:, RECORD.index("object")]) == {0.0, 1.0}

@@ -297,6 +297,7 @@ def integrate_torus(s: Settings, arch, run_passes) -> tuple[dict, dict]:
         estimate = total / density
         out.update({name: estimate, f"{name}_se": se, f"{name}_exact": exact[name],
                     f"{name}_rel_error": (estimate - exact[name]) / exact[name],
+                    f"{name}_error": abs(estimate - exact[name]) / exact[name],
                     f"{name}_z": (estimate - exact[name]) / se if se > 0 else None})
     out.update(pass_work(result))
     return passes, out
@@ -473,11 +474,11 @@ def poisson_disk(s: Settings, arch, run_passes) -> tuple[dict, dict, np.ndarray,
         candidates = (coords[void] + np.clip(local, 0.0, 1.0 - 1e-12)) * side[:, None]
         candidates[:, d:] = 0.0
         accepted = accept_candidates(candidates[rng.permutation(len(candidates))], points, count, grid, s.radius)
-        voids = len(levels)
+        voids, level = len(levels), int(levels[0])
         levels, coords, lost, lost_volume = split_voids(levels, coords, d, points, grid, s.radius, s.max_level)
         dropped += lost
         dropped_volume += lost_volume
-        rows.append({"round": len(rows), "voids": voids, "level": int(levels.min()) if len(levels) else s.max_level,
+        rows.append({"round": len(rows), "voids": voids, "level": level,
                      "candidates": len(records), "overflow": int(result.append.overflow), "accepted": accepted,
                      "points": int(count[0]), **pass_work(result)})
     table = pd.DataFrame(rows)
