@@ -162,3 +162,24 @@ def test_density_image_errors_are_one_line(tmp_path):
     Image.fromarray(np.zeros((8, 8), np.uint8)).save(tmp_path / "black.png")
     with pytest.raises(UserError, match="is black"):
         load_density("black.png", tmp_path, 16)
+
+
+def test_a_run_writes_the_point_set_and_its_plot(tmp_path):
+    """`pipeline-sim run` of a Poisson file: results.json's counts, points.npy (the set it counts, r
+    apart), points.png and rounds.csv, listed in run.json (the workload's arrays and figures)."""
+    import json
+
+    from pipeline_sim.cli import main
+
+    f = tmp_path / "p.toml"
+    f.write_text('kind = "sampling"\nmethod = "poisson"\ndimension = 2\nradius = 0.25\nspp = 4\n')
+    out = tmp_path / "run"
+    assert main(["run", str(f), "--out", str(out), "--quiet", "--seed", "1"]) == 0
+    results = json.loads((out / "results.json").read_text())
+    pts = np.load(out / "points.npy")
+    assert results["points"] == len(pts) and isinstance(results["points"], int)
+    assert not cKDTree(pts).query_pairs(0.25 * (1 - 1e-12))
+    info = json.loads((out / "run.json").read_text())
+    assert info["arrays"] == ["points.npy"] and info["figures"] == ["points.png"]
+    assert (out / "points.png").stat().st_size > 1000 and (out / "rounds.csv").is_file()
+    assert info["workload"]["settings"]["seed"] == 1

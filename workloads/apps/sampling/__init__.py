@@ -349,8 +349,8 @@ def accept_candidates(candidates, points, count, grid, radius):
 
 @nb.njit(cache=True)
 def _covered(origin, side, dimension, points, grid, radius):
-    """Whether one point lies within ``radius`` of every corner of the cell [origin, origin + side)^d (the
-    ball being convex, it then covers the cell)."""
+    """Nilsson12 §5, a void's coverage test: whether one point lies within ``radius`` of every corner of
+    the cell [origin, origin + side)^d (the ball being convex, it then covers the cell)."""
     n0, nz = grid.shape[0], grid.shape[2]
     lo = np.empty(3, np.int64)
     hi = np.empty(3, np.int64)
@@ -474,7 +474,7 @@ def poisson_disk(s: Settings, arch, run_passes) -> tuple[dict, dict, np.ndarray,
         candidates = (coords[void] + np.clip(local, 0.0, 1.0 - 1e-12)) * side[:, None]
         candidates[:, d:] = 0.0
         accepted = accept_candidates(candidates[rng.permutation(len(candidates))], points, count, grid, s.radius)
-        voids, level = len(levels), int(levels[0])
+        voids, level = len(levels), int(levels[0])  # every round splits all its voids: one level
         levels, coords, lost, lost_volume = split_voids(levels, coords, d, points, grid, s.radius, s.max_level)
         dropped += lost
         dropped_volume += lost_volume
@@ -616,14 +616,19 @@ def plot_points(points: np.ndarray, extent: tuple[float, float], title: str, rad
     fig = Figure(figsize=(6, 6 * extent[1] / extent[0]))
     ax = fig.add_subplot()
     size = 2.0 if radius is None else max((72.0 * 6.0 * radius / extent[0]) ** 2 / 4.0, 0.5)
-    colour = points[:, 2] if points.shape[1] == 3 else "k"
-    ax.scatter(points[:, 0], points[:, 1], s=size, c=colour, cmap="viridis", linewidths=0)
+    colour = {"c": points[:, 2], "cmap": "viridis"} if points.shape[1] == 3 else {"c": "k"}
+    ax.scatter(points[:, 0], points[:, 1], s=size, linewidths=0, **colour)
     ax.set_xlim(0, extent[0])
     ax.set_ylim(extent[1], 0)
     ax.set_aspect("equal")
     ax.set_title(title)
     fig.tight_layout()
     return fig
+
+
+def strict(results: dict) -> dict:
+    """The results for results.json: counts as integers, other figures as finite floats or null."""
+    return {k: int(v) if isinstance(v, (int, np.integer)) else finite_or_none(v) for k, v in results.items()}
 
 
 class Sampling(Workload):
@@ -648,13 +653,16 @@ class Sampling(Workload):
         for v in variants or [self]:
             s = v.settings_file
             check_spp(s.pattern, s.spp, 64, f"{v.path}: ")
-            if s.method == "torus":
-                if s.minor >= s.major:
-                    raise UserError(f"{v.path}: minor: the minor radius {s.minor} must be less than the major "
-                                    f"radius {s.major}")
-                torus_prisms(s)
-            elif s.method == "density":
-                load_density(s.image, v.path.parent, s.resolution)
+            if s.method == "torus" and s.minor >= s.major:
+                raise UserError(f"{v.path}: minor: the minor radius {s.minor} must be less than the major "
+                                f"radius {s.major}")
+            try:
+                if s.method == "torus":
+                    torus_prisms(s)
+                elif s.method == "density":
+                    load_density(s.image, v.path.parent, s.resolution)
+            except UserError as e:
+                raise UserError(f"{v.path}: {e}") from None
         s = self.settings_file
         what = {"torus": f"a torus (R {s.major}, r {s.minor}) in {s.slabs} slabs of {2 * s.segments} prisms",
                 "poisson": f"a maximal Poisson-disk set in {s.dimension}D, radius {s.radius}",
@@ -670,7 +678,7 @@ class Sampling(Workload):
         start = time.perf_counter()
         if s.method == "torus":
             passes, results = integrate_torus(s, self.arch, run_passes)
-            return WorkloadResult(passes, results={k: finite_or_none(v) for k, v in results.items()})
+            return WorkloadResult(passes, results=strict(results))
         if s.method == "poisson":
             passes, results, pts, table = poisson_disk(s, self.arch, run_passes)
             results["wall_time_s"] = time.perf_counter() - start
@@ -678,12 +686,12 @@ class Sampling(Workload):
             results.update({"scipy_points": len(ref), "scipy_wall_time_s": ref_time,
                             "points_vs_scipy": len(pts) / len(ref)})
             fig = plot_points(pts, (1.0, 1.0), f"{len(pts)} points, radius {s.radius}", s.radius)
-            return WorkloadResult(passes, results={k: finite_or_none(v) for k, v in results.items()},
+            return WorkloadResult(passes, results=strict(results),
                                   tables={"rounds": table}, arrays={"points": pts}, figures={"points": fig})
         rho = load_density(s.image, self.path.parent, s.resolution)
         passes, results, pts = adaptive_white_noise(s, rho, self.arch, run_passes)
         fig = plot_points(pts, (rho.shape[1], rho.shape[0]), f"{len(pts)} points following {s.image}")
-        return WorkloadResult(passes, results={k: finite_or_none(v) for k, v in results.items()},
+        return WorkloadResult(passes, results=strict(results),
                               arrays={"points": pts, "density": rho}, figures={"points": fig})
 
     def resolved(self) -> dict:
