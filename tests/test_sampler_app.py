@@ -241,3 +241,23 @@ def test_the_doc_example_runs_as_written():
         exec(compile(block, str(doc), "exec"), scope)
     assert "samples appended" in printed.getvalue()
     assert set(scope["records"][:, RECORD.index("object")]) == {0.0, 1.0}
+
+
+def test_the_cost_sweep_validates_and_measures_the_error_against_cycles(tmp_path):
+    """workloads/sweeps/sampling_cost.toml validates; the same study in small runs the torus per point and
+    puts its errors beside the simulated cycles: more samples, more cycles, a smaller standard error."""
+    from pathlib import Path
+
+    from pipeline_sim.sweep import load_sweep, run_sweep
+
+    root = Path(__file__).resolve().parent.parent
+    study = load_sweep(root / "workloads/sweeps/sampling_cost.toml")
+    assert len(study.points) == 24 and {p["image.spp"] for p in study.points} == {4, 16, 64, 256}
+    sweep = tmp_path / "s.toml"
+    sweep.write_text(f'[sweep]\nscene = "{root}/workloads/apps/sampling/torus.toml"\n'
+                     'results = ["volume_error", "volume_se"]\n[grid]\n"image.spp" = [4, 16]\n'
+                     '"workload.resolution" = [24]\n"workload.slabs" = [4]\n')
+    frame = run_sweep(load_sweep(sweep), tmp_path / "out", executor="serial", progress=False).set_index("image.spp")
+    assert frame.loc[16, "frame_cycles"] > frame.loc[4, "frame_cycles"]
+    assert frame.loc[16, "result.volume_se"] == pytest.approx(frame.loc[4, "result.volume_se"] / 2, rel=0.1)
+    assert (frame["result.volume_error"] < 4 * frame["result.volume_se"] / reference_torus(1.0, 0.4)["volume"]).all()
