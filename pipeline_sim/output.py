@@ -167,9 +167,16 @@ def pass_record(p, result, arch: dict) -> dict[str, Any]:
             "headline": headline(result), "wall_time_s": result.wall_time}
 
 
+def _files(result) -> dict[str, list[str]]:
+    """run.json's lists of a workload's arrays and figures, for a workload that has any."""
+    files = {"arrays": [f"{name}.npy" for name in result.arrays], "figures": [f"{name}.png" for name in result.figures]}
+    return {key: names for key, names in files.items() if names}
+
+
 def write_run(folder: Path, workload, result, info: dict[str, Any]) -> dict[str, Any]:
     """A workload's run folder (docs/outputs.md) into ``folder`` (an output folder's staging):
-    ``passes/<pass>/`` for every pass, ``results.json`` and one CSV per table, ``run.json``
+    ``passes/<pass>/`` for every pass, ``results.json``, one CSV per table, one .npy per array and
+    one PNG per figure, ``run.json``
     (everything resolved, plus ``info``) and the report. Returns run.json's content."""
     from reports.run_report import headline, html_report, markdown_report
 
@@ -181,11 +188,15 @@ def write_run(folder: Path, workload, result, info: dict[str, Any]) -> dict[str,
         passes.append(pass_record(states[name], r, arch))
     for name, table in result.tables.items():
         table.to_csv(folder / f"{file_name(name, 'table')}.csv", index=False)
+    for name, array in result.arrays.items():
+        np.save(folder / f"{file_name(name, 'array')}.npy", array)
+    for name, figure in result.figures.items():
+        figure.savefig(folder / f"{file_name(name, 'figure')}.png", dpi=100)
     write_json(folder / "results.json", result.results)
     total = result.total()
     run_info = {"kind": workload.kind, "workload": {**workload.resolved(), "digest": workload.digest},
                 "arch": arch, "passes": passes, "results": sorted(result.results),
-                "tables": [f"{name}.csv" for name in result.tables], "frame_cycles": total.timing.frame_cycles,
+                "tables": [f"{name}.csv" for name in result.tables], **_files(result), "frame_cycles": total.timing.frame_cycles,
                 "headline": headline(total), "wall_time_s": total.wall_time, **info}
     write_json(folder / "run.json", run_info)
     (folder / "report.md").write_text(markdown_report(result, run_info, files_dir=folder / "report_files"))

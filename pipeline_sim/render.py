@@ -158,7 +158,10 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     check_targets(where, p.targets or (Target(),), p.outputs, len(draws), p.append)
     conservative = state.conservative
     ts = 1 if conservative else arch.tile_traverser.tile_size
-    motion, lens = draw.has_motion, draw.has_lens
+    # a pass samples time (the lens) when a draw moves (is defocused) or clips it: a static prism cut by clip
+    # planes in t is a volume of xyt (Nilsson12 §5)
+    motion = draw.has_motion or any(c[0] > 0.0 or c[1] < 1.0 for c in clips)
+    lens = draw.has_lens or any(c[2] > -1.0 or c[3] < 1.0 or c[4] > -1.0 or c[5] < 1.0 for c in clips)
     shader_textures = _pass_textures(p, textures or {})
     append = None if p.append is None else (np.zeros((p.append.capacity, len(p.append.fields)), np.float32),
                                             np.zeros(1, np.int64))

@@ -49,11 +49,14 @@ Progress = Callable[[int, int], None] | None
 @dataclass
 class WorkloadResult:
     """What a workload's run gives: every pass's result in run order, its derived results
-    (JSON-able: ``results.json``) and its tables (one CSV file each)."""
+    (JSON-able: ``results.json``), its tables (one CSV file each), its arrays (one .npy file each) and its figures
+    (one PNG file each)."""
 
     passes: dict[str, Any]  # pass name -> pipeline_sim.render.PassResult, in run order
     results: dict[str, Any] = field(default_factory=dict)
     tables: dict[str, pd.DataFrame] = field(default_factory=dict)
+    arrays: dict[str, np.ndarray] = field(default_factory=dict)  # name -> array, written as <name>.npy
+    figures: dict[str, Any] = field(default_factory=dict)  # name -> matplotlib figure, written as <name>.png
 
     @property
     def final(self):
