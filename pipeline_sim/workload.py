@@ -205,7 +205,7 @@ def pass_state(p: Any) -> dict[str, Any]:
         "name": p.name, "spp": p.spp, "seed": p.seed,
         "state": dataclasses.asdict(p.state),
         "sample_pattern": "table" if p.sample_table is not None else p.state.sample_pattern,
-        "sample_table": p.sample_table,
+        "sample_table": p.sample_table, "scramble_table": p.scramble_table,
         "clear_color": list(p.clear_color), "clear_depth": p.clear_depth, "zcull_refresh": p.zcull_refresh,
         "shader": getattr(p.shader, "__qualname__", None) or getattr(p.shader, "__name__", repr(p.shader)),
         "shader_module": getattr(p.shader, "__module__", None),
