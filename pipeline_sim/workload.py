@@ -49,11 +49,13 @@ Progress = Callable[[int, int], None] | None
 @dataclass
 class WorkloadResult:
     """What a workload's run gives: every pass's result in run order, its derived results
-    (JSON-able: ``results.json``) and its tables (one CSV file each)."""
+    (JSON-able: ``results.json``), its tables (one CSV file each) and its images (linear RGBA
+    (H, W, 4), each written as ``images/<name>.npy`` and ``.png``: e.g. the views of a lens resolve)."""
 
     passes: dict[str, Any]  # pass name -> pipeline_sim.render.PassResult, in run order
     results: dict[str, Any] = field(default_factory=dict)
     tables: dict[str, pd.DataFrame] = field(default_factory=dict)
+    images: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def final(self):
