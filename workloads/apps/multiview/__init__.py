@@ -45,8 +45,8 @@ LIGHT = np.array([0.0, *LIGHT_DIRECTION, 0.9, 0.9, 0.9, 0.25], np.float32)
 # until nothing is evicted)
 UNBOUNDED_FACTOR = 4
 
-Counts = Annotated[list[count(1, 64)], Field(min_length=1, max_length=8)]
-Sizes = Annotated[list[count(0, 1 << 22)], Field(min_length=1, max_length=8)]
+Counts = Annotated[list[count(1, 64)], Field(max_length=8)]
+Sizes = Annotated[list[count(0, 1 << 22)], Field(max_length=8)]
 
 
 @dataclass
@@ -70,10 +70,10 @@ class Settings:
     reference_x: number(-10.0, 10.0) = key("position on the camera line of the shading cache's reference camera, "
                                            "world units from its centre", default=0.0)
     view_counts: Counts = key("view counts whose shader executions results.json compares (each its own camera "
-                              "line of the same spacing, window and samples per view)",
+                              "line of the same spacing, window and samples per view; empty: none)",
                               default_factory=lambda: [1, 2, 7])
     cache_sizes: Sizes = key("shading-cache entries compared (0: no cache, one shader execution per covered "
-                             "sample); an unbounded cache is added", default_factory=lambda: [0, 1024])
+                             "sample); an unbounded cache is added (with any view count)", default_factory=lambda: [0, 1024])
     reference_spp: count(1, 4096) = key("rays per pixel of each view's ray-cast reference (the error figures)",
                                         default=64)
 
@@ -386,6 +386,7 @@ class Multiview(Workload):
         results = {
             "views": s.views, "samples_per_view": s.samples_per_view, "spp": layout.spp,
             "shader_executions": main.counter("shading", "shader_executions"),
+            "frame_cycles": float(main.timing.frame_cycles),
             "rmse_per_view": [finite_or_none(e) for e in errors],
             "rmse_mean": finite_or_none(float(np.mean(errors))), "rmse_max": finite_or_none(float(np.max(errors))),
         }
@@ -397,7 +398,7 @@ class Multiview(Workload):
         combined = {"side_by_side": np.concatenate(images, axis=1)}
         if len(images) > 1:
             combined["anaglyph"] = anaglyph(images[0], images[-1])
-        return WorkloadResult(passes, results=results, tables={"shader_executions": table},
+        return WorkloadResult(passes, results=results, tables={"shader_executions": table} if rows else {},
                               images={**views, **combined})
 
     def resolved(self) -> dict:
