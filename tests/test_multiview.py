@@ -155,3 +155,20 @@ def test_docs_example_runs_as_written():
     text = (ROOT / "docs/multiview.md").read_text()
     code = re.search(r"```python\n(.*?)```", text, re.S).group(1)
     exec(compile(code, "docs/multiview.md", "exec"), {})
+
+
+def test_cost_sweep_varies_samples_per_view_and_cache_size(tmp_path):
+    from pipeline_sim.sweep import load_sweep, run_sweep
+
+    shipped = load_sweep(ROOT / "workloads/sweeps/multiview_cost.toml")
+    assert len(shipped.points) == 16
+    (tmp_path / "seven.toml").write_text((ROOT / "workloads/apps/multiview/seven.toml").read_text()
+                                         .replace("width = 64", "width = 16").replace("height = 48", "height = 12"))
+    text = (ROOT / "workloads/sweeps/multiview_cost.toml").read_text().replace("../apps/multiview/", "")
+    text = re.sub(r'"workload.samples_per_view" = \[.*\]', '"workload.samples_per_view" = [2, 32]', text)
+    text = re.sub(r'"shading.cache_entries" = \[.*\]', '"shading.cache_entries" = [64]', text)
+    (tmp_path / "sweep.toml").write_text(text)
+    frame = run_sweep(load_sweep(tmp_path / "sweep.toml"), tmp_path / "out", executor="serial", progress=False)
+    assert (frame.status == "ok").all() and len(frame) == 2
+    error = dict(zip(frame["workload.samples_per_view"], frame["result.rmse_mean"]))
+    assert error[32] < 0.5 * error[2]
