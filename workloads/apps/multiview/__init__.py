@@ -73,7 +73,8 @@ class Settings:
                               "line of the same spacing, window and samples per view; empty: none)",
                               default_factory=lambda: [1, 2, 7])
     cache_sizes: Sizes = key("shading-cache entries compared (0: no cache, one shader execution per covered "
-                             "sample); an unbounded cache is added (with any view count)", default_factory=lambda: [0, 1024])
+                             "sample); an unbounded cache is added (with any view count)",
+                             default_factory=lambda: [0, 1024])
     reference_spp: count(1, 4096) = key("rays per pixel of each view's ray-cast reference (the error figures)",
                                         default=64)
 
@@ -171,8 +172,9 @@ def _box(centre, half, color) -> tuple[np.ndarray, ...]:
 
 def scene_triangles(motion: float) -> tuple[np.ndarray, ...]:
     """The scene in the centre camera's eye space: world triangles at shutter open and close (N, 3, 3),
-    vertex colours (N, 3, 3) and face normals (N, 3) (the boxes translate: one normal for the shutter). A checkered back wall and floor; a box in front of the focus plane
-    moving right, one on it standing still, one behind it moving up and left."""
+    vertex colours (N, 3, 3) and face normals (N, 3) (the boxes translate: one normal for the shutter).
+    A checkered back wall and floor; a box in front of the focus plane moving right, one on it standing
+    still, one behind it moving up and left."""
     parts = [
         _grid(np.array([-9.0, -1.5, -18.0]), np.array([18.0, 0.0, 0.0]), np.array([0.0, 12.0, 0.0]), 6,
               [(0.75, 0.7, 0.6), (0.35, 0.4, 0.55)]),
@@ -348,6 +350,23 @@ class Multiview(Workload):
                           scramble_table=True,
                           targets=(Target("views", clear=CLEAR, resolve="lens", views=regions),))
 
+    def study_pass(self, views: int, size: int | None, progress=None):
+        """Run ``views`` views with a cache of ``size`` entries (0: none, one shader execution per covered
+        sample; None: unbounded, at least UNBOUNDED_FACTOR entries per sample of the pass and doubled until
+        nothing is evicted). Returns the pass's result and the entries it had."""
+        name = f"views{views}_cache{'unbounded' if size is None else size}"
+        if size is not None:
+            arch = self.cache_arch(size) if size else self.arch
+            return self.run_passes([self.make_pass(name, views, arch, size > 0)], progress)[name], size
+        entries = 1 << int(np.ceil(np.log2(UNBOUNDED_FACTOR * self.layout(views).spp * self.settings_file.width
+                                           * self.settings_file.height)))
+        while True:
+            r = self.run_passes([self.make_pass(name, views, self.cache_arch(entries), True)], progress)[name]
+            if r.counter("shading", "evictions") == 0:
+                return r, entries
+            self.states.pop()  # run.json records the pass that counts
+            entries *= 2
+
     def run(self, progress=None) -> WorkloadResult:
         s = self.settings_file
         layout = self.layout()
@@ -357,28 +376,15 @@ class Multiview(Workload):
         errors = [rmse(img, ref) for img, ref in zip(images, reference)]
         passes = {"views": main}
         rows = []
-        for views in s.view_counts:
-            samples = self.layout(views).spp * s.width * s.height
-            caches = [(str(size), size) for size in s.cache_sizes] + [("unbounded", None)]
-            for label, size in caches:
-                entries = size
-                while True:
-                    if size is None:
-                        entries = max(entries or 0, 1 << int(np.ceil(np.log2(UNBOUNDED_FACTOR * samples))))
-                    arch = self.cache_arch(entries) if entries else self.arch
-                    name = f"views{views}_cache{label}"
-                    r = self.run_passes([self.make_pass(name, views, arch, bool(entries))], progress)[name]
-                    if size is not None or r.counter("shading", "evictions") == 0:
-                        break
-                    self.states.pop()
-                    entries *= 2
-                passes[name] = r
-                rows.append({"views": views, "cache": label, "cache_entries": entries,
-                             "spp": self.layout(views).spp, "samples_covered": r.counter("sample_tester",
-                                                                                        "samples_covered"),
+        for views in dict.fromkeys(s.view_counts):
+            for size in dict.fromkeys([*s.cache_sizes, None]):
+                r, entries = self.study_pass(views, size, progress)
+                passes[r.name] = r
+                rows.append({"views": views, "cache": "unbounded" if size is None else str(size),
+                             "cache_entries": entries, "spp": self.layout(views).spp,
+                             "samples_covered": r.counter("sample_tester", "samples_covered"),
                              "shader_executions": r.counter("shading", "shader_executions"),
-                             "cache_hits": r.counter("shading", "hits"),
-                             "frame_cycles": float(r.timing.frame_cycles)})
+                             "cache_hits": r.counter("shading", "hits"), "frame_cycles": float(r.timing.frame_cycles)})
         table = pd.DataFrame(rows)
         one = {row["cache"]: row["shader_executions"] for row in rows if row["views"] == 1}
         table["increase_over_one_view"] = [finite_or_none(row["shader_executions"] / one[row["cache"]] - 1.0)
