@@ -91,6 +91,22 @@ def test_window_weights_sum_to_one_and_a_sample_weighs_in_the_views_holding_it(l
         assert (views_per_sample[ends] == 1).mean() > 0.99 and (views_per_sample[~ends] == 2).mean() > 0.99
 
 
+def test_per_eye_u_tests_test_the_samples_one_u_interval_tests():
+    """Why the tile test has no per-view u option: per-eye u tests, made here by drawing the geometry once
+    per eye with user clip planes on u (folded into each record's u^, Nilsson12 §2), test exactly the
+    samples one pass's single u^ tests (its windows tile the lens, so the union of u^ and each window is
+    u^) and cover the same ones, at twice the tile tests."""
+    from pipeline_sim.pass_state import ClipPlanes
+
+    w = workload(**STEREO, width=32, height=24)
+    one = w.make_pass("views", 2, w.arch, True)
+    eyes = [dataclasses.replace(one.draw, clip=ClipPlanes(u_lo=lo, u_hi=hi)) for lo, hi in w.layout().windows()]
+    single, split = run_pass(one), run_pass(dataclasses.replace(one, draw=eyes, targets=None))
+    for counter in ("samples_tested", "samples_covered"):
+        assert single.counter("sample_tester", counter) == split.counter("sample_tester", counter)
+    assert split.counter("tile_test", "records_in") == 2 * single.counter("tile_test", "records_in")
+
+
 @pytest.mark.parametrize("line", [STEREO, SEVEN], ids=["stereo", "seven"])
 def test_shader_execution_increase_over_one_view(line):
     w = workload(**line, width=32, height=24, samples_per_view=8, view_counts=[1, 2, 7], cache_sizes=[0, 256, 1024],
@@ -162,8 +178,10 @@ def test_cost_sweep_varies_samples_per_view_and_cache_size(tmp_path):
 
     shipped = load_sweep(ROOT / "workloads/sweeps/multiview_cost.toml")
     assert len(shipped.points) == 16
-    (tmp_path / "seven.toml").write_text((ROOT / "workloads/apps/multiview/seven.toml").read_text()
-                                         .replace("width = 64", "width = 16").replace("height = 48", "height = 12"))
+    seven = (ROOT / "workloads/apps/multiview/seven.toml").read_text()
+    (tmp_path / "seven.toml").write_text(re.sub(r"(?m)^height = \d+", "height = 12",
+                                                re.sub(r"(?m)^width = \d+", "width = 16", seven)))
+    assert "width = 16" in (tmp_path / "seven.toml").read_text()
     text = (ROOT / "workloads/sweeps/multiview_cost.toml").read_text().replace("../apps/multiview/", "")
     text = re.sub(r'"workload.samples_per_view" = \[.*\]', '"workload.samples_per_view" = [2, 32]', text)
     text = re.sub(r'"shading.cache_entries" = \[.*\]', '"shading.cache_entries" = [64]', text)
