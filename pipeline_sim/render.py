@@ -93,6 +93,8 @@ class RenderPass:
     clear_color: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
     clear_depth: float = 1.0
     sample_table: np.ndarray | None = None  # given: the pass samples it (pattern "table")
+    # the table's (x, y, t) rotated per pixel (Cranley-Patterson; its (u, v) kept: a lens region keeps its samples)
+    scramble_table: bool = False
     zcull_refresh: str = "timed"  # one of ZCULL_REFRESH
     simulation: SimOptions = field(default_factory=SimOptions)
 
@@ -173,7 +175,8 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
 
     def region_samples(rows: tuple[int, int]):
         return make_samples(draw.width, draw.height, spp, p.seed, lens=lens, motion=motion, pattern=pattern,
-                            table=p.sample_table, interleave_tuples=state.interleave_tuples, rows=rows)
+                            table=p.sample_table, scramble_table=p.scramble_table,
+                            interleave_tuples=state.interleave_tuples, rows=rows)
 
     cached_shading = state.shading_mode == "cache" and not conservative
     step = row_step(ts, arch.tile_traverser.coarse_factor, state.shading_rate if cached_shading else None)
