@@ -22,7 +22,7 @@ from pipeline_sim.pass_state import PassState
 from pipeline_sim.render import RenderPass, run_pass
 from pipeline_sim.shaders import IN_T_HI, IN_T_LO, IN_X, IN_Y, append_record
 from pipeline_sim.targets import AppendBuffer
-from triangles import moving_triangle
+from triangles import moving_triangle, touches
 from units.tile_test import TileTest
 from units.tile_traverser import TileTraverser
 from units.triangle_setup import TriangleSetup
@@ -37,29 +37,6 @@ def screen(q, r, t):
     x = (c[..., 0] / c[..., 3] + 1.0) * 0.5 * W
     y = (1.0 - c[..., 1] / c[..., 3]) * 0.5 * H
     return np.stack([x, y], axis=-1)
-
-
-def _orient(a, b, c):
-    return (b[..., 0] - a[..., 0]) * (c[..., 1] - a[..., 1]) - (b[..., 1] - a[..., 1]) * (c[..., 0] - a[..., 0])
-
-
-def touches(tri, px, py, grow=1e-9):
-    """Reference: does each triangle of ``tri`` (n, 3, 2) meet the closed square of pixel (px, py)?"""
-    x0, x1, y0, y1 = px - grow, px + 1 + grow, py - grow, py + 1 + grow
-    inside = ((tri[..., 0] >= x0) & (tri[..., 0] <= x1) & (tri[..., 1] >= y0) & (tri[..., 1] <= y1)).any(axis=1)
-    sq = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
-    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-    for corner in sq:
-        o = np.stack([_orient(a, b, corner), _orient(b, c, corner), _orient(c, a, corner)])
-        inside |= (o >= 0).all(axis=0) | (o <= 0).all(axis=0)
-    for k in range(3):
-        p, q = tri[:, k], tri[:, (k + 1) % 3]
-        for m in range(4):
-            s, e = sq[m], sq[(m + 1) % 4]
-            d1, d2 = _orient(p, q, s), _orient(p, q, e)
-            d3, d4 = _orient(s, e, p), _orient(s, e, q)
-            inside |= (d1 * d2 <= 0) & (d3 * d4 <= 0)
-    return inside
 
 
 def records(q, r, exact):

@@ -24,8 +24,8 @@ orthographic view from above whose pixels are squares of the floor):
    edge functions' roots, Gribel10 §4.1; ``tile``: the tile test's t^). The shader adds, with float ADD
    blending, the beam's irradiance times the share of the receiver's footprint the beam's end section
    covers, where the pixel's interval reaches t = 1 (the only section that meets the floor): the footprint
-   is the pixel's square of floor in the top view and the receiver point alone in the eye view. A second
-   channel counts the shader executions per pixel.
+   is the pixel's square of floor in the top view and the receiver point alone in the eye view. The
+   irradiance goes to the three colour channels; the fourth counts the shader executions per pixel.
 
 With ``fill_rate`` the eye view's light pass also runs with the other interval method, and the pixels the
 bounding volumes of each beam would cover are counted in numpy, both touched in the closed-pixel sense of
@@ -63,6 +63,8 @@ VIEWS = ("eye", "top")
 END_T = 1.0 - 1e-6
 #: Floats of one beam in the light shader's parameters: its end triangle (x, y) x 3 and its irradiance.
 BEAM_PARAMS = 7
+#: Pixels a volume may miss a pixel by and still count as touching it (rounding; as ``units.tile_test_exact``).
+TOUCH = 1e-7
 CENTRE = np.array([[0.5, 0.5, 0.0, 0.0, 0.5]])  # one sample at each pixel's centre
 LIGHT_STATE = PassState(mode="conservative", depth_test="always", depth_write=False, blend="add")
 
@@ -299,12 +301,12 @@ def light_shader(inputs, params, textures, out, append):
     the beam's end section (t = 1, the only section on the floor), the beam's irradiance (``params``: per beam
     its end triangle and irradiance, after ``params[0]``, the receiver footprint's half side) times the share
     of the receiver's footprint it covers: a square of floor (top view) or the receiver point alone (half side
-    0). Channel 1 counts the executions."""
+    0), in the three colour channels; channel 3 counts the executions."""
     receivers = textures[0]
     half = params[0]
     for i in range(inputs.shape[1]):
-        out[i, 0] = 0.0
-        out[i, 1] = 1.0
+        out[i, 0] = out[i, 1] = out[i, 2] = 0.0
+        out[i, 3] = 1.0
         x, y = inputs[IN_X, i], inputs[IN_Y, i]
         if inputs[IN_T_HI, i] < END_T or fetch(receivers, x, y, 3) < 0.5:
             continue
@@ -321,7 +323,7 @@ def light_shader(inputs, params, textures, out, append):
             d1 = (cx - bx) * (ry - by) - (cy - by) * (rx - bx)
             d2 = (ax - cx) * (ry - cy) - (ay - cy) * (rx - cx)
             share = 1.0 if (d0 >= 0 and d1 >= 0 and d2 >= 0) or (d0 <= 0 and d1 <= 0 and d2 <= 0) else 0.0
-        out[i, 0] = params[b + 6] * share
+        out[i, 0] = out[i, 1] = out[i, 2] = params[b + 6] * share
 
 
 # ------------------------------------------------------------------ bounding volumes
@@ -330,8 +332,8 @@ def light_shader(inputs, params, textures, out, append):
 @nb.njit(cache=True)
 def convex_pixel_counts(points, counts):
     """Add 1 to ``counts`` (H, W) at every pixel whose closed square the convex hull of each ``points[b]``
-    (k, 2), in pixels, touches. Separating axes: the square's two and the normal of every pair of points,
-    which include the hull's edges."""
+    (k, 2), in pixels, touches (within ``TOUCH`` pixels, as the exact intervals' margin). Separating axes:
+    the square's two and the normal of every pair of points, which include the hull's edges."""
     height, width = counts.shape
     k = points.shape[1]
     for b in range(points.shape[0]):
@@ -340,7 +342,7 @@ def convex_pixel_counts(points, counts):
         y_min, y_max = pts[:, 1].min(), pts[:, 1].max()
         for py in range(max(0, int(math.floor(y_min)) - 1), min(height - 1, int(math.floor(y_max))) + 1):
             for px in range(max(0, int(math.floor(x_min)) - 1), min(width - 1, int(math.floor(x_max))) + 1):
-                if x_min > px + 1 or x_max < px or y_min > py + 1 or y_max < py:
+                if x_min > px + 1 + TOUCH or x_max < px - TOUCH or y_min > py + 1 + TOUCH or y_max < py - TOUCH:
                     continue
                 apart = False
                 for i in range(k):
@@ -355,7 +357,8 @@ def convex_pixel_counts(points, counts):
                             for cy in (py, py + 1):
                                 v = nx * cx + ny * cy
                                 c_lo, c_hi = min(c_lo, v), max(c_hi, v)
-                        if c_lo > hi or c_hi < lo:
+                        slack = TOUCH * (abs(nx) + abs(ny))
+                        if c_lo > hi + slack or c_hi < lo - slack:
                             apart = True
                             break
                     if apart:
@@ -367,7 +370,9 @@ def convex_pixel_counts(points, counts):
 def prism_vertices(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     """The bounding prism of each beam (Ernst et al. 2005): through each edge of the generator the plane
     tilted outward just enough to hold both end points of the beam's side, capped by the generator's plane
-    and the floor (z = 0); its six vertices (B, 6, 3), where adjacent side planes meet the two caps."""
+    and the floor (z = 0); its six vertices (B, 6, 3), where adjacent side planes meet the two caps. A beam
+    that focuses through a caustic crosses its side planes before the floor, so they bound no prism there:
+    the fill-rate count takes the hull of these vertices and the end triangle, which bounds every beam."""
     b = len(p)
     centre = p.mean(axis=1)
     planes_n = np.empty((b, 3, 3))
@@ -446,21 +451,23 @@ def reference_photon_irradiance(s: Settings, photons: int, seed: int, interpolat
     lo = -np.maximum(0.0, slide * (top - bottom)) - cell
     hi = s.size + np.maximum(0.0, -slide * (top - bottom)) + cell
     power = -d[2] * float(np.prod(hi - lo)) / photons  # each photon's share of E0 |d_z| over the start box
-    span = int(np.ceil(np.max(np.abs(slide)) * (top - bottom) / cell)) + 2
+    span = int(np.ceil(np.max(np.abs(slide)) * (top - bottom) / cell)) + 1  # cells a path crosses per axis
     rng = np.random.default_rng(seed)
     res = s.resolution
     image = np.zeros(res * res)
     for start in range(0, photons, 1 << 18):
         m = min(1 << 18, photons - start)
         o = np.concatenate([rng.uniform(lo, hi, (m, 2)), np.full((m, 1), top)], axis=1)
-        c0 = np.floor(np.minimum(o[:, :2], o[:, :2] + slide * (top - bottom)) / cell).astype(np.int64) - 1
+        ends_xy = (o[:, :2], o[:, :2] + slide * (top - bottom))  # the path's xy at the top and the bottom
+        c0 = np.floor(np.minimum(*ends_xy) / cell).astype(np.int64)
+        c1 = np.floor(np.maximum(*ends_xy) / cell).astype(np.int64)
         best = np.full(m, np.inf)
         hit_face = np.full(m, -1)
         hit_uv = np.zeros((m, 2))
-        for di in range(span + 1):
-            for dj in range(span + 1):
+        for di in range(span):
+            for dj in range(span):
                 ci, cj = c0[:, 0] + di, c0[:, 1] + dj
-                inside = (ci >= 0) & (ci < s.cells) & (cj >= 0) & (cj < s.cells)
+                inside = (ci >= 0) & (ci < s.cells) & (cj >= 0) & (cj < s.cells) & (ci <= c1[:, 0]) & (cj <= c1[:, 1])
                 v = cj * n + ci
                 for second, tri in enumerate(((v, v + 1, v + n + 1), (v, v + n + 1, v + n))):
                     a, b, c = (verts[np.where(inside, k, 0)] for k in tri)
@@ -570,8 +577,8 @@ class Caustics(Workload):
             out.append(RenderPass(draw=beam_draw, arch=self.arch, spp=1, name=f"{view}.light" + (
                 "" if m == s.intervals else f".{m}"), state=LIGHT_STATE.replace(time_intervals=m),
                 shader=light_shader, params=params, textures=(f"{view}.receivers.receivers",),
-                outputs=(ShaderOutput("light", 2),),
-                targets=(Target("light", source="light", clear=(0.0, 0.0), depth="always"),)))
+                outputs=(ShaderOutput("light", 4),),
+                targets=(Target("light", source="light", clear=(0.0,) * 4, depth="always"),)))
         return out
 
     def run(self, progress=None) -> WorkloadResult:
@@ -591,9 +598,10 @@ class Caustics(Workload):
         tables: dict[str, pd.DataFrame] = {}
         if s.fill_rate:
             cam, w, h = view_camera(s, "eye")
-            heat = {s.intervals: light["eye"][..., 1].astype(np.int64),
-                    other: passes[f"eye.light.{other}"].images["light"][0][..., 1].astype(np.int64),
-                    "prism": projected_volume_pixels(prism_vertices(beams.p, beams.q), cam, w, h),
+            heat = {s.intervals: light["eye"][..., 3].astype(np.int64),
+                    other: passes[f"eye.light.{other}"].images["light"][0][..., 3].astype(np.int64),
+                    "prism": projected_volume_pixels(np.concatenate([prism_vertices(beams.p, beams.q), beams.q], axis=1),
+                                                     cam, w, h),
                     "hull": projected_volume_pixels(np.concatenate([beams.p, beams.q], axis=1), cam, w, h)}
             totals = {m: int(heat[m].sum()) for m in METHODS}
             results["executions"] = totals
