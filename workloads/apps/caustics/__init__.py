@@ -105,6 +105,9 @@ class Settings:
                           "prism's and the hull's pixels", default=True)
     photons: count(0, 100_000_000) = key("photons of the reference trace (0: none)", default=1_000_000)
     seed: count(0) = key("seed of the photon trace", default=0)
+    reference_cells: count(1, 2048) = key("cells of the finer surface whose photon trace (each photon refracted "
+                                          "at its interpolated normal) measures what the surface resolution "
+                                          "costs", default=256)
 
 
 @dataclass
@@ -624,6 +627,9 @@ class Caustics(Workload):
                 for n in (s.photons // 16, s.photons // 4) if n}
             results["model_error_rel_l1"] = relative_errors(
                 top, reference_photon_irradiance(s, s.photons, s.seed, interpolated_normal=True))["rel_l1"]
+            fine = dataclasses.replace(s, cells=s.reference_cells)
+            results["error_fine_rel_l1"] = relative_errors(
+                top, reference_photon_irradiance(fine, s.photons, s.seed + 2, interpolated_normal=True))["rel_l1"]
             ys, xs = np.nonzero((top > 0) | (ref > 0))
             tables["top_pixels"] = pd.DataFrame({"x": xs, "y": ys, "raster": top[ys, xs], "photons": ref[ys, xs]})
         return WorkloadResult(passes, results=results, tables=tables)
