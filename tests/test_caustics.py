@@ -9,11 +9,16 @@
   projected vertices (scipy), and include every pixel where its photons land;
 * fill rate: the moving triangle with exact intervals shades fewer pixels than the bounding prism and no
   more than the tile test's intervals; per pixel, the prism covers what the hull covers;
-* a light pointing up and waves steep enough to shadow the surface are refused in one line.
+* a light pointing up and waves steep enough to shadow the surface are refused in one line;
+* docs/caustics.md's example runs as written.
 """
 
+import contextlib
 import dataclasses
+import io
 import math
+import re
+from pathlib import Path
 
 import numba as nb
 import numpy as np
@@ -134,3 +139,12 @@ def test_bad_surfaces_are_refused_in_one_line(tmp_path, text, message):
     with pytest.raises(UserError) as err:
         load_workload(path, load_arch())
     assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_the_doc_example_runs_as_written():
+    doc = Path(__file__).resolve().parent.parent / "docs" / "caustics.md"
+    (block,) = re.findall(r"```python\n(.*?)```", doc.read_text(), flags=re.S)
+    scope: dict = {"__name__": "caustics_example"}
+    with contextlib.redirect_stdout(io.StringIO()):
+        exec(compile(block, str(doc), "exec"), scope)
+    assert scope["r"]["beams"] == 2 * 8 * 8

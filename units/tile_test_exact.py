@@ -108,7 +108,8 @@ def _quadratic_roots(a, b, c, roots, n, lo, hi, ops):
 @nb.njit(cache=True)
 def exact_time_interval(p0, dp, tri, x0, x1, y0, y1, lo, hi, ops):
     """The hull of the times in [lo, hi] at which triangle ``tri`` (2DH vertices ``p0 + t dp``, all
-    w > 0) meets the closed square [x0, x1] x [y0, y1]; (inf, -inf) when it never does. Gribel10 §4.1, eq. 3-7, on the pixel square instead of its centre (see the module)."""
+    w > 0) meets the closed square [x0, x1] x [y0, y1]; (inf, -inf) when it never does. Gribel10 §4.1,
+    eq. 3-7, on the pixel square instead of its centre (see the module)."""
     roots = np.empty(MAX_ROOTS + 2)
     roots[0] = lo
     n = 1

@@ -601,10 +601,10 @@ class Caustics(Workload):
         tables: dict[str, pd.DataFrame] = {}
         if s.fill_rate:
             cam, w, h = view_camera(s, "eye")
+            prism = np.concatenate([prism_vertices(beams.p, beams.q), beams.q], axis=1)
             heat = {s.intervals: light["eye"][..., 3].astype(np.int64),
                     other: passes[f"eye.light.{other}"].images["light"][0][..., 3].astype(np.int64),
-                    "prism": projected_volume_pixels(np.concatenate([prism_vertices(beams.p, beams.q), beams.q], axis=1),
-                                                     cam, w, h),
+                    "prism": projected_volume_pixels(prism, cam, w, h),
                     "hull": projected_volume_pixels(np.concatenate([beams.p, beams.q], axis=1), cam, w, h)}
             totals = {m: int(heat[m].sum()) for m in METHODS}
             results["executions"] = totals
