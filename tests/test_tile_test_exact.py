@@ -8,6 +8,7 @@ axes: a vertex of one in the other, or an edge of the triangle crossing a side o
 * conservative: every sampled t at which the reference sees contact lies in the pixel's interval, and a pixel
   whose record the exact test drops has no contact at any sampled t;
 * tight: the triangle touches the pixel (within 1e-5 px) at both ends of every interval;
+* triangles crossing w = 0 or defocused keep the tile test's intervals;
 * a pass in conservative mode with ``time_intervals = "exact"`` shades exactly the pixels a dense time sampling
   touches, never more than the tile test's intervals, and hands the shader the same intervals.
 """
@@ -39,9 +40,10 @@ def screen(q, r, t):
     return np.stack([x, y], axis=-1)
 
 
-def records(q, r, exact):
-    """The tile test's kept 1x1 records (tx, ty, t_lo, t_hi) for one moving triangle, exact intervals or not."""
-    d = draw_from_clip(q, r, width=W, height=H)
+def records(q, r, exact, lens=None):
+    """The tile test's kept 1x1 records (tx, ty, t_lo, t_hi) for one moving triangle (with a constant lens
+    shift ``lens``, or none), exact intervals or not."""
+    d = draw_from_clip(q, r, lens_x=lens, lens_y=lens, width=W, height=H)
     arch = load_arch()
     setup = TriangleSetup(arch.triangle_setup, d, 1, False)
     alive, _, _ = setup.run(np.arange(1, dtype=np.int64))
@@ -120,3 +122,16 @@ def test_pass_shades_exactly_the_pixels_dense_sampling_touches():
     assert len(exact) < len(tile)
     for p, (lo, hi) in exact.items():
         assert tile[p][0] <= lo <= hi <= tile[p][1]
+
+
+def test_triangles_crossing_w_zero_or_defocused_keep_the_tile_intervals():
+    """The exact intervals need w > 0 and no lens: other triangles keep the tile test's t^ (Nilsson12 §2)."""
+    crossing_q = np.array([[[-0.5, -0.5, 0.5, 1.0], [0.5, -0.5, 0.5, 1.0], [0.0, 0.5, 0.5, 1.0]]])
+    crossing_r = crossing_q.copy()
+    crossing_r[0, 2, 3] = -0.5  # the third vertex passes behind the eye
+    for q, r, lens in ((crossing_q, crossing_r, None), (crossing_q, crossing_q + [0.3, 0.0, 0.0, 0.0], 0.02)):
+        lx = None if lens is None else np.full((1, 3, 2), lens)
+        out = [records(q, r, exact, lx)[0] for exact in (False, True)]
+        assert len(out[0]["tri"]) > 0
+        for name in ("tx", "ty", "t_lo", "t_hi"):
+            assert np.array_equal(out[0][name], out[1][name])
