@@ -9,7 +9,8 @@
   projected vertices (scipy), and include every pixel where its photons land;
 * fill rate: the moving triangle with exact intervals shades fewer pixels than the bounding prism and no
   more than the tile test's intervals; per pixel, the prism covers what the hull covers;
-* a light pointing up and waves steep enough to shadow the surface are refused in one line;
+* a light pointing up, waves steep enough to shadow the surface and a camera that does not see the whole
+  pool in front of it are refused in one line;
 * docs/caustics.md's example runs as written.
 """
 
@@ -132,12 +133,13 @@ def test_moving_triangles_shade_fewer_pixels_than_the_prism(wavy):
     ("light = [0.1, 0.0, 0.5]", "light: the light must point down"),
     ("[[waves]]\namplitude = 0.05\nwavelength = 0.05", "waves: too steep for the light"),
     ("depth = 0.01\n[[waves]]\namplitude = 0.02\nwavelength = 1.0", "waves: their amplitudes"),
+    ("eye = [0.5, 0.5, 0.2]\nlook_at = [0.5, 1.5, 0.2]", "eye: the eye view's camera must see the whole pool"),
 ])
 def test_bad_surfaces_are_refused_in_one_line(tmp_path, text, message):
     path = tmp_path / "bad.toml"
     path.write_text(f'kind = "caustics"\n{text}\n')
     with pytest.raises(UserError) as err:
-        load_workload(path, load_arch())
+        load_workload(path, load_arch()).check()
     assert message in str(err.value) and "\n" not in str(err.value)
 
 

@@ -223,6 +223,16 @@ def check_surface(s: Settings, where: str) -> None:
                             f"along it, the light falls {-d[2] / horizontal:.3g} (the surface would shadow itself)")
 
 
+def check_beams(s: Settings, beams: Beams, where: str) -> None:
+    """Refuse (one line) beams the passes cannot draw: one focused to a line or a point on the floor (no
+    finite irradiance), or a vertex not in front of the eye view's camera."""
+    if not np.all(np.isfinite(beams.irradiance)):
+        raise UserError(f"{where}: waves: a beam focuses to a line or a point on the floor (infinite irradiance)")
+    cam, w, h = view_camera(s, "eye")
+    if np.any(to_clip(cam, w, h, np.concatenate([beams.p, beams.q], axis=1))[..., 3] <= 0.0):
+        raise UserError(f"{where}: eye: the eye view's camera must see the whole pool in front of it")
+
+
 # ------------------------------------------------------------------ views
 
 
@@ -553,6 +563,7 @@ class Caustics(Workload):
     def check(self, variants=None, *, reference_spp=None) -> str:
         for v in variants or [self]:
             check_surface(v.data, str(v.path))
+            check_beams(v.data, make_beams(v.data, water_surface(v.data)), str(v.path))
         s = self.data
         return (f"{2 * s.cells * s.cells} beams, eye view {s.width}x{s.height}, top view "
                 f"{s.resolution}x{s.resolution}, {s.photons} reference photons")
@@ -587,6 +598,7 @@ class Caustics(Workload):
     def run(self, progress=None) -> WorkloadResult:
         s = self.data
         beams = make_beams(s, water_surface(s))
+        check_beams(s, beams, str(self.path))
         other = "tile" if s.intervals == "exact" else "exact"
         methods = {"eye": (s.intervals, other) if s.fill_rate else (s.intervals,), "top": (s.intervals,)}
         passes = self.run_passes([p for v in VIEWS for p in self._passes(v, beams, methods[v])], progress)
