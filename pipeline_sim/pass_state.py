@@ -66,6 +66,10 @@ class PassState:
     mode: Literal["standard", "conservative"] = setting(
         "standard", ACCURACY, "`conservative`: 1x1 tiles, one sample and one shader execution per covered pixel "
         "(Nilsson12 §2)", reference="standard")
+    time_intervals: Literal["tile", "exact"] = setting(
+        "tile", ACCURACY, "conservative mode, motion-only triangles: `tile`: the tile test's t^ per pixel; "
+        "`exact`: the hull of the times the triangle meets the closed pixel, from the roots of its edge "
+        "functions (Gribel10 §4.1), and no shader execution where there are none", reference="exact")
     depth_test: Literal[DEPTH_FUNCS] = setting(
         "less", IMAGE, "the ROP's depth function")
     depth_write: Flag = setting(True, IMAGE, "the ROP writes the depth of a sample that passes")

@@ -195,7 +195,8 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     traverser = TileTraverser(arch.tile_traverser, setup.table, ts, draw.width, draw.height,
                               coarse_test=algorithm.COARSE_TEST)
     tile_test = TileTest(arch.tile_test, setup.table, ts, draw.width, draw.height, draw.depth_w,
-                         clips[0], tuples=first.tuples, extension=setup.extension)
+                         clips[0], tuples=first.tuples, extension=setup.extension,
+                         exact_time=conservative and state.time_intervals == "exact")
     spec = arch.pipeline.specialize
     zcull = ZCull(arch.zcull, state.depth_test, ts, draw.width, draw.height, p.clear_depth,
                   motion or not spec, lens or not spec)

@@ -362,7 +362,8 @@ def test_scene_pass_and_simulation_tables(tmp_path, root):
 
 def _alternative(path: str, value):
     """A valid value other than the default, for every setting."""
-    special = {"pass.mode": "conservative", "pass.sample_pattern": "sobol", "pass.interleave_tuples": 32,
+    special = {"pass.mode": "conservative", "pass.time_intervals": "exact", "pass.sample_pattern": "sobol",
+               "pass.interleave_tuples": 32,
                "simulation.region_samples": 4096, "tile_test.algorithm": "bbox", "tile_test.edge_solver": "quadratic",
                "tile_test.gamma": "tile", "pass.clip.t_hi": 0.5, "pass.clip.t_lo": 0.5,
                "pass.clip.u_lo": 0.0, "pass.clip.u_hi": 0.0, "pass.clip.v_lo": 0.0,
@@ -399,7 +400,7 @@ def test_every_setting_declares_what_it_can_change():
     effects = setting_effects()
     listed = _all_paths()
     assert set(effects) == set(listed) and set(effects.values()) <= set(EFFECTS)
-    assert len([p for p in listed if p.startswith("pass.")]) == 18 and "simulation.region_samples" in listed
+    assert len([p for p in listed if p.startswith("pass.")]) == 19 and "simulation.region_samples" in listed
     # every setting's alternative value is valid on its own
     for path, value in listed.items():
         pass_settings([_override(path, _alternative(path, value))])

@@ -147,3 +147,28 @@ def sample_inside_points(setup, tri, rng, n, width, height, tuples=None):
         if ok:
             out.append((float(np.float32(x)), float(np.float32(y)), float(t), float(u), float(v), float(z)))
     return out
+
+
+def _orient(a, b, c):
+    return (b[..., 0] - a[..., 0]) * (c[..., 1] - a[..., 1]) - (b[..., 1] - a[..., 1]) * (c[..., 0] - a[..., 0])
+
+
+def touches(poly, px, py, grow=1e-9):
+    """Does each convex polygon of ``poly`` (n, k, 2, vertices in order) meet the closed square of pixel
+    (px, py), widened by ``grow``? A vertex of one in the other, or an edge of the polygon crossing a side
+    of the square (not the separating-axis rule of the units)."""
+    x0, x1, y0, y1 = px - grow, px + 1 + grow, py - grow, py + 1 + grow
+    inside = ((poly[..., 0] >= x0) & (poly[..., 0] <= x1) & (poly[..., 1] >= y0) & (poly[..., 1] <= y1)).any(axis=1)
+    sq = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+    k = poly.shape[1]
+    for corner in sq:
+        o = np.stack([_orient(poly[:, i], poly[:, (i + 1) % k], corner) for i in range(k)])
+        inside |= (o >= 0).all(axis=0) | (o <= 0).all(axis=0)
+    for i in range(k):
+        p, q = poly[:, i], poly[:, (i + 1) % k]
+        for m in range(4):
+            s, e = sq[m], sq[(m + 1) % 4]
+            d1, d2 = _orient(p, q, s), _orient(p, q, e)
+            d3, d4 = _orient(s, e, p), _orient(s, e, q)
+            inside |= (d1 * d2 <= 0) & (d3 * d4 <= 0)
+    return inside

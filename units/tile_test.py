@@ -28,6 +28,7 @@ from units.rounding import F32_REL, MARGIN_PX
 from units.tile_test_bounds import (EV_ACCEPT, EV_REJ_BOX, EV_REJ_EDGE, EV_REJ_LENS, box_time_interval,
                                     edge_time_interval, lens_interval, plane_w_bounds)
 from units.tile_test_dual import dual_time_interval, two_stage_lines
+from units.tile_test_exact import exact_kernel
 from units.tile_test_hull import hull_overlaps_tile
 from units.tile_test_interleave import interleave_mask
 from units.tile_test_quadratic import quadratic_time_interval
@@ -211,11 +212,13 @@ class TileTest:
 
     def __init__(self, config, table, tile_size: int, width: int, height: int,
                  depth_w: tuple[float, float] | None = None, clips: np.ndarray | None = None,
-                 tuples: np.ndarray | None = None, extension: tuple | None = None):
+                 tuples: np.ndarray | None = None, extension: tuple | None = None, exact_time: bool = False):
         """``table``: triangle setup's table; ``clips``: the user clip planes (t_lo, t_hi, u_lo, u_hi,
         v_lo, v_hi) of the first batches' draw (``clips`` is set again per batch when the draws of a
         pass differ); ``extension``: its culling algorithm's fields (``TriangleSetup.extension``),
-        needed when the algorithm declares some."""
+        needed when the algorithm declares some; ``exact_time``: narrow each 1x1 tile's t^ of a
+        motion-only triangle to the exact hull of the times it meets the closed pixel
+        (``units.tile_test_exact``), dropping the record where there are none (conservative mode)."""
         self.config = config
         self.clips = np.array([0.0, 1.0, -1.0, 1.0, -1.0, 1.0]) if clips is None else np.asarray(clips, np.float64)
         self.table = table
@@ -231,6 +234,9 @@ class TileTest:
             raise ValueError(f"{config.algorithm} needs triangle setup's {self.algorithm.TRIANGLE_EXT.names}: "
                              "TriangleSetup(..., culling=units.culling.algorithm(name)).extension")
         self.extension = extension if extension is not None else self.algorithm.TRIANGLE_EXT.table(0)
+        if exact_time and tile_size != 1:
+            raise ValueError("exact time intervals are per pixel: they need 1x1 tiles (conservative mode)")
+        self.exact_time = exact_time
 
     def run(self, tiles: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
         """Test a batch of tile records; return the survivors with their intervals and the
@@ -252,6 +258,12 @@ class TileTest:
                          t.edge_fg, t.edge_abs, t.plane_n, t.plane_d, h.hull, h.hull_n, h.hull_off, self.tuples,
                          self.depth_c1, self.depth_c0, keep, *iv, ext_out.get("lines", _NO_LINES),
                          ext_out.get("mask", _NO_MASKS), ops, events)
+        if self.exact_time:
+            motion_only = ((t.flags & FLAG_WPOS) != 0) & ((t.flags & FLAG_LENS) == 0)
+            cleared = exact_kernel(tiles["tri"], tiles["tx"], tiles["ty"], motion_only, t.p0, t.dp, keep, iv[0], iv[1],
+                                   ops)
+            events[EV_ACCEPT] -= cleared
+            events[EV_REJ_EDGE] += cleared
         res = {name: arr[keep] for name, arr in tiles.items()}
         res.update({name: row[keep] for name, row in zip(INTERVALS, iv)})
         res.update({name: arr[keep] for name, arr in ext_out.items()})
