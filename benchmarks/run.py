@@ -12,7 +12,8 @@ the two agree, and when other jobs compete for the two cores the CPU time is
 the steadier of the two. ``--quick`` (about 2 minutes, a good part of it the
 cold compile) uses fewer repeats, smaller sweeps and a tiny stand-in for the
 1080p frame; the default (about 12 minutes on an idle 2-core machine, 7 of
-them the 1080p frame of section 7) is the full run.
+them the 1080p frame of section 7, before section 11, which took 13 minutes
+more on a machine with a load average of 6 to 12) is the full run.
 
 The figures, all for the default workload (workloads/scenes/default.toml)
 unless said otherwise:
