@@ -70,14 +70,12 @@ def sobol_points(n: int, seed: int) -> np.ndarray:
 
 
 class Peer:
-    """One EGL context rendering a pass's draw as an accumulation buffer."""
+    """An OpenGL context (``ctx``) rendering pass ``p``'s draw as an accumulation buffer."""
 
-    def __init__(self, p) -> None:
-        import moderngl
-
+    def __init__(self, p, ctx) -> None:
         from pipeline_sim.shaders import LIGHT_DIRECTIONAL
 
-        self.ctx = moderngl.create_standalone_context(backend="egl")
+        self.ctx = ctx
         self.renderer = self.ctx.info["GL_RENDERER"]
         d = p.draw
         self.w, self.h = d.width, d.height
@@ -127,15 +125,17 @@ class Peer:
 
 
 def open_peer(p) -> tuple[Peer | None, str]:
-    """A peer for pass ``p``, or None and the reason none could be made."""
+    """A peer for pass ``p``, or None and the reason none could be made (a shader or
+    buffer error once a context exists is a bug, and raises)."""
     try:
-        import moderngl  # noqa: F401
+        import moderngl
     except ImportError as exc:
         return None, f"moderngl is not installed ({exc}); pip install -e '.[bench]'"
     try:
-        return Peer(p), ""
-    except Exception as exc:  # no EGL display, no libEGL, no OpenGL 3.3: report and skip
+        ctx = moderngl.create_standalone_context(backend="egl")
+    except Exception as exc:  # no libEGL, no EGL display or no OpenGL 3.3 driver: report and skip
         return None, f"no EGL context: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+    return Peer(p, ctx), ""
 
 
 def time_to_equal_error(peer: Peer, ref: np.ndarray, targets: dict[str, float], max_passes: int,
