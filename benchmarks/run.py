@@ -12,7 +12,8 @@ the two agree, and when other jobs compete for the two cores the CPU time is
 the steadier of the two. ``--quick`` (about 2 minutes, a good part of it the
 cold compile) uses fewer repeats, smaller sweeps and a tiny stand-in for the
 1080p frame; the default (about 12 minutes on an idle 2-core machine, 7 of
-them the 1080p frame of section 7) is the full run.
+them the 1080p frame of section 7, before section 11, which took 13 minutes
+more on a machine with a load average of 6 to 12) is the full run.
 
 The figures, all for the default workload (workloads/scenes/default.toml)
 unless said otherwise:
@@ -115,9 +116,19 @@ unless said otherwise:
    ``git archive`` (before issue 12, before its pass layer), each in fresh
    subprocesses in rotating order, in one run: wall and CPU time, their
    ratios, and whether image and counters are the same. Writes ``ab.csv``.
+11. ("convergence" section) Error against samples per pixel, per sample
+   pattern (benchmarks/convergence.py): RMSE against a converged reference
+   on a motion-only, a defocus-only and a motion + defocus + camera-motion
+   scene at 16 .. 1024 spp, its log-log slope and the error at 256 spp
+   (deterministic figures); and the peer, Mesa's llvmpipe through moderngl
+   on EGL as an accumulation buffer on the motion + defocus scene
+   (benchmarks/peer.py; skipped with a note without moderngl or EGL): the
+   passes it needs to reach the project's error at 64 and 256 spp and the
+   time to equal error, project over peer, timed alternately in one run.
+   Writes ``convergence.csv``.
 
 ``--only SECTION[,SECTION]`` runs some sections only (default, tester,
-scaling, compile, specialization, batch, frame, patterns, ab; "default" is 0-2);
+scaling, compile, specialization, batch, frame, patterns, ab, convergence; "default" is 0-2);
 ``--frame-triangles N[,N]`` changes the frame section's sizes.
 """
 
@@ -155,8 +166,10 @@ FULL = {
     "batch_repeats": 2,
     "frame": {"n": [250_000, 1_000_000], "width": 1920, "height": 1080, "spp": 16,
               "time_limit_s": 480, "mem_limit_gib": 12},
-    "patterns": {"width": 64, "height": 64, "spp": [16, 64], "pixels": 256},
+    "patterns": {"width": 64, "height": 64, "spp": [16, 64], "pixels": 256, "t_value_m": list(range(1, 13))},
     "ab_rounds": 5, "ab_runs": 5,
+    "convergence": {"width": 160, "height": 90, "spp": [16, 32, 64, 128, 256, 512, 1024], "ref_spp": 8192,
+                    "peer_max_passes": 1024, "peer_rounds": 3},
 }
 QUICK = {
     "pairs": 3, "instrumented": 1, "simpy_only": 3, "micro_repeats": 5, "scaling_repeats": 1,
@@ -168,11 +181,14 @@ QUICK = {
     "batch_repeats": 1,
     # a tiny stand-in for the 1080p frame (same triangles, 1/16 of the pixels)
     "frame": {"n": [4_000], "width": 480, "height": 270, "spp": 16, "time_limit_s": 120, "mem_limit_gib": 12},
-    "patterns": {"width": 32, "height": 32, "spp": [16], "pixels": 64},
+    "patterns": {"width": 32, "height": 32, "spp": [16], "pixels": 64, "t_value_m": [4, 6, 8]},
     "ab_rounds": 2, "ab_runs": 3,
+    "convergence": {"width": 64, "height": 36, "spp": [16, 64, 256], "ref_spp": 2048, "peer_max_passes": 512,
+                    "peer_rounds": 1},
 }
 # sections in the order they run; --only picks some
-SECTIONS = ("default", "tester", "scaling", "compile", "specialization", "batch", "frame", "patterns", "ab")
+SECTIONS = ("default", "tester", "scaling", "compile", "specialization", "batch", "frame", "patterns", "ab",
+            "convergence")
 
 
 def log(msg: str) -> None:
@@ -674,9 +690,9 @@ def report(results: dict) -> tuple[str, list[dict]]:
             add("tester", f"tester_over_brute_force@{name}", r["ratio_brute"], "ratio",
                 "tile samples per second: the tester vs the micro-kernel on every sample of each record's tile")
             add("tester", f"tester_rate@{name}", r["tester_rate"], "tests/s")
-    from benchmarks import ab, batching, frame, patterns, specialization
+    from benchmarks import ab, batching, convergence, frame, patterns, specialization
     for key, mod in (("specialization", specialization), ("batch", batching), ("frame", frame),
-                     ("patterns", patterns), ("ab", ab)):
+                     ("patterns", patterns), ("ab", ab), ("convergence", convergence)):
         if key in results:
             out.extend(mod.report(results[key], table, add))
             out.append("")
@@ -759,6 +775,9 @@ def main(argv: list[str] | None = None) -> int:
     if "ab" in sections:
         from benchmarks import ab
         results["ab"] = ab.bench(cfg, log)
+    if "convergence" in sections:
+        from benchmarks import convergence
+        results["convergence"] = convergence.bench(cfg, log)
     results["machine"]["load_average_end"] = os.getloadavg()
     results["source_digest_end"] = source_digest()
     results["elapsed_s"] = time.perf_counter() - start
@@ -788,6 +807,7 @@ def main(argv: list[str] | None = None) -> int:
                 for pt in s["points"]:
                     w.writerow({"sweep": name, **pt})
         written.append("scaling.csv")
+    from benchmarks import convergence
     tables = {
         "specialization": ("specialization.csv", lambda r: r["rows"],
                            ["scene", "dims", "specialize", "has_motion", "has_lens", "triangles", "samples_tested",
@@ -801,6 +821,8 @@ def main(argv: list[str] | None = None) -> int:
                   ["sweep", "triangles", "tiles", "samples", "frame_cycles", "cycles_vs_smallest", "cycles_vs_previous",
                    "cycles_vs_all_smallest", "cycles_deterministic", "wall_s", "cpu_s", "image_identical",
                    "depth_identical", "samples_tested", "zcull_records_out", "zcull_tiles_culled", "source_batches"]),
+        "convergence": ("convergence.csv", lambda r: convergence.csv_rows(r),
+                        ["scene", "pattern", "spp", "rmse", "wall_s", "slope", "reference_error"]),
         "ab": ("ab.csv", lambda r: r["rows"],
                ["tree", "wall_median_s", "cpu_median_s", "current_over_this_wall", "current_over_this_cpu", "runs",
                 "frame_cycles", "same_image", "same_counters"]),

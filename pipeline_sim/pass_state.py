@@ -79,7 +79,8 @@ class PassState:
                                      "(conservative for moving and defocused triangles)")
     clip: ClipPlanes = field(default_factory=ClipPlanes)
     sample_pattern: Literal[SAMPLE_PATTERNS] = setting(
-        "net", ACCURACY, "`net`: the t-ordered (0, m, 3)-net of Munkberg11 §5; `sobol`, `stratified`, `random`; "
+        "net", ACCURACY, "`net`: the t-ordered (0, m, 3)-net of Munkberg11 §5; `net5`: a t-ordered (t, m, 5)-net, "
+        "stratified in all five dimensions (docs/pipeline.md §3); `sobol`, `stratified`, `random`; "
         "all scrambled per pixel; `interleave`: each pixel takes spp of a fixed set of (u, v, t) tuples",
         reference="net")
     interleave_tuples: count(1, 64) = setting(64, ACCURACY, "size of that fixed set (one bit each in a tile's "

@@ -7,8 +7,8 @@ loaded or compiled, so ``check`` accepts exactly what ``run`` runs, and a
 refusal is one line (a :class:`~pipeline_sim.errors.UserError`) within a
 second or two. Checked:
 
-* the samples: the sample pattern's rule on spp (a power of two for ``net``
-  and ``sobol``; at most, and a divisor of, ``pass.interleave_tuples``
+* the samples: the sample pattern's rule on spp (a power of two for ``net``,
+  ``sobol`` and ``net5``; at most, and a divisor of, ``pass.interleave_tuples``
   for ``interleave``), and the rules between the hardware and the pass state
   (:func:`pipeline_sim.config.check_compatible`); the image limits themselves are the scene loader's
   (:func:`pipeline_sim.scene.check_image_value`), applied to overrides too;

@@ -21,6 +21,17 @@ lens coordinates are "padded" from an independently scrambled 2D LP net,
 assigned through a per-pixel random permutation and mapped to the unit disk
 with the Shirley-Chiu concentric map (or to the square ``[-1, 1]^2``).
 
+The ``net5`` pattern is stratified in all five dimensions and still t-ordered:
+the first 2^m points of the 4D Sobol sequence give (x, y, u, v) and the point's
+index gives ``t = j / 2^m`` (the index-as-coordinate construction that turns a
+(t, s)-sequence into a (t, m, s+1)-net; Niederreiter 1992, Lemma 4.22). Each
+pixel applies Matousek's random linear scramble (a random lower-triangular
+digit matrix and a digital shift per dimension), which keeps every
+elementary interval of the net and has the variance of Owen's nested
+scrambling (Owen 2003), plus a jitter inside the finest stratum. The
+scrambled t digits are a permutation of 0..2^m-1, so each point is written
+straight to its t-sorted position.
+
 All randomness comes from a counter-based hash of ``(seed, pixel, stream,
 index)``, so a pixel's samples depend only on the seed and its global pixel
 index: generating a band of rows gives exactly the rows of the full frame.
@@ -53,9 +64,11 @@ __all__ = [
     "grunschloss_keller_matrices",
     "make_samples",
     "map_lens",
+    "net5_columns",
     "net_integer_coords",
     "square_lens",
     "t_ordered_net",
+    "t_ordered_net5",
     "MAX_SPP",
 ]
 
@@ -64,7 +77,9 @@ MAX_SPP = 1 << 16
 #: Fixed-point precision of generated coordinates (float32 mantissa).
 _FRAC_BITS = 24
 #: Sample patterns :func:`make_samples` generates; "table" also needs the user's table.
-PATTERNS = ("net", "random", "stratified", "sobol", "table", "interleave")
+PATTERNS = ("net", "random", "stratified", "sobol", "table", "interleave", "net5")
+#: Patterns whose spp must be a power of two (their strata are nets in base 2).
+_POWER_OF_TWO = ("net", "sobol", "net5")
 _LENS_SHAPES = ("disk", "square")
 _TABLE_COLUMNS = ("x", "y", "u", "v", "t")
 _MASK64 = (1 << 64) - 1
@@ -190,6 +205,7 @@ _S_RND_X, _S_RND_Y, _S_RND_T, _S_RND_A, _S_RND_B = 11, 12, 13, 14, 15
 _S_ROT = 16
 _S_STRAT = 17  # stratified: jitter streams 17..21, permutation keys 22..25
 _S_SOBOL = 30  # sobol: digital-shift masks per dimension 30..34, jitter 35..39
+_S_NET5 = 40  # net5: scramble matrix columns and shift per dimension 40..44, jitter 45..47
 
 _JIT = dict(nogil=True, cache=True)
 
@@ -445,6 +461,93 @@ def _sobol_kernel(p0, lo, hi, spp, m, seed_key, base_pts, lens, motion, square, 
                 ov[base + s] = v
 
 
+@numba.njit(**_JIT)
+def _net5_kernel(p0, lo, hi, spp, m, seed_key, cols, lens, motion, square, ox, oy, ou, ov, ot):
+    """The t-ordered (t, m, 5)-net: ``cols`` (5, m) holds the m-digit generator
+    columns of x, y, u, v (4D Sobol) and t (the index, column l = 2^l).
+
+    Per pixel and dimension d a random scramble ``y = L_d x ^ e_d`` (Matousek
+    1998): ``L_d`` is lower triangular in digit order with a unit diagonal, so
+    the top k digits of y depend only on the top k digits of x, bijectively,
+    and every elementary interval maps onto one of the same shape. Applied to
+    the generator columns once per pixel (``L_d C_d``), the points then follow
+    in Gray-code order with one XOR per dimension, and each is written at its
+    scrambled t stratum, which is its t-sorted position (Munkberg11 §5).
+    """
+    jb = _FRAC_BITS - m
+    lcol = np.empty(max(m, 1), dtype=np.uint64)
+    sc = np.empty((5, max(m, 1)), dtype=np.uint64)
+    cur = np.empty(5, dtype=np.uint64)
+    for lp in range(lo, hi):
+        key = _pixel_key(seed_key, p0 + lp)
+        base = lp * spp
+        for d in range(5):
+            for b in range(m):  # column b of L_d: bit b set, random bits below it
+                one = np.uint64(1) << np.uint64(b)
+                lcol[b] = one | (_rand(key, _S_NET5 + d, b) & (one - np.uint64(1)))
+            for l in range(m):  # L_d C_d: XOR of L_d's columns at the set bits of C_d's column l
+                c = cols[d, l]
+                acc = np.uint64(0)
+                for b in range(m):
+                    if (c >> np.uint64(b)) & np.uint64(1):
+                        acc ^= lcol[b]
+                sc[d, l] = acc
+            cur[d] = _top_bits(_rand(key, _S_NET5 + d, m), m)  # the digital shift e_d
+        for k in range(spp):
+            if k:
+                b = 0
+                while not (k >> b) & 1:
+                    b += 1
+                for d in range(5):
+                    cur[d] ^= sc[d, b]
+            s = np.int64(cur[4])
+            h = _rand(key, _S_NET5 + 5, s)
+            ox[base + s] = _fixed_to_unit((cur[0] << np.uint64(jb)) | _top_bits(h, jb))
+            oy[base + s] = _fixed_to_unit((cur[1] << np.uint64(jb)) | _top_bits(h << np.uint64(24), jb))
+            if motion:
+                tj = _top_bits(_rand(key, _S_NET5 + 7, s), jb)
+                ot[base + s] = _fixed_to_unit((cur[4] << np.uint64(jb)) | tj)
+            else:
+                ot[base + s] = 0.5
+            if lens:
+                g = _rand(key, _S_NET5 + 6, s)
+                a = _fixed_to_unit((cur[2] << np.uint64(jb)) | _top_bits(g, jb))
+                bb = _fixed_to_unit((cur[3] << np.uint64(jb)) | _top_bits(g << np.uint64(24), jb))
+                u, v = _lens_point(a, bb, square)
+                ou[base + s] = u
+                ov[base + s] = v
+
+
+def net5_columns(m: int) -> np.ndarray:
+    """(5, m) generator columns of the t-ordered (t, m, 5)-net, rows x, y, u, v, t.
+
+    Column l of a row holds the m digits (top bit = weight 1/2) that bit l of
+    the point index j contributes: x, y, u, v are Sobol dimensions 1-4
+    (scipy's direction numbers; its unscrambled points come in Gray-code order,
+    so point 2^(l+1) - 1 is column l) and t's column l is 2^l, so t = j / 2^m.
+    """
+    _check_m(m, 16)
+    pts = sobol_points(m)[:4]
+    cols = np.empty((5, m), dtype=np.uint64)
+    for l in range(m):
+        cols[:4, l] = pts[:, (1 << (l + 1)) - 1]
+        cols[4, l] = 1 << l
+    return cols
+
+
+def t_ordered_net5(m: int) -> np.ndarray:
+    """Unscrambled t-ordered (t, m, 5)-net: shape (2^m, 5) float64 columns (x, y, u, v, t).
+
+    Row j is point j of the 4D Sobol sequence with ``t = j / 2^m`` appended.
+    """
+    cols = net5_columns(m)
+    j = np.arange(1 << m, dtype=np.uint64)
+    ints = np.zeros((1 << m, 5), dtype=np.uint64)
+    for l in range(m):
+        ints ^= ((j >> np.uint64(l)) & np.uint64(1))[:, None] * cols[:, l][None, :]
+    return ints.astype(np.float64) / (1 << m)
+
+
 def sobol_points(m: int) -> np.ndarray:
     """(5, 2^m) integer coordinates (m digits) of the first 2^m points of the
     unscrambled 5D Sobol sequence (scipy.stats.qmc), dimensions x, y, t, a, b."""
@@ -602,11 +705,11 @@ def _seed_key(seed: int) -> np.uint64:
 
 
 def check_spp(pattern: str, spp: int, interleave_tuples: int, where: str = "") -> None:
-    """The rule of sample pattern ``pattern`` on ``spp``: a power of two for ``net`` and ``sobol``
+    """The rule of sample pattern ``pattern`` on ``spp``: a power of two for ``net``, ``sobol`` and ``net5``
     (their strata), a divisor of ``interleave_tuples`` for ``interleave`` (each pixel takes a whole
     group of the tuple set). A one-line :class:`UserError` prefixed with ``where`` otherwise."""
     prefix = f"{where}: " if where else ""
-    if pattern in ("net", "sobol") and spp & (spp - 1):
+    if pattern in _POWER_OF_TWO and spp & (spp - 1):
         raise UserError(f"{prefix}spp = {spp} must be a power of two for the '{pattern}' sample pattern "
                         "(pass.sample_pattern)")
     if pattern == "interleave" and (spp > interleave_tuples or interleave_tuples % spp):
@@ -635,7 +738,9 @@ def make_samples(
     (``spp = 2^m``) with a padded, permuted 2D net on the lens; ``"random"``:
     uniform samples; ``"stratified"``: jittered, one sample per 1/spp stratum
     of each dimension (Latin hypercube pairing); ``"sobol"``: the 5D Sobol
-    points with a per-pixel digital shift (``spp = 2^m``); ``"table"``: the user's (spp, 5) table (columns x, y, u, v,
+    points with a per-pixel digital shift (``spp = 2^m``); ``"net5"``: the
+    t-ordered (t, m, 5)-net (4D Sobol in (x, y, u, v), ``t = j / 2^m``) with a
+    per-pixel random linear scramble and jitter (``spp = 2^m``); ``"table"``: the user's (spp, 5) table (columns x, y, u, v,
     t) in every pixel, optionally Cranley-Patterson rotated per pixel;
     ``"interleave"``: Interleave UVT (see ``interleave_tuple_set``).
     Values depend only on (seed, pixel index, sample index).
@@ -695,6 +800,10 @@ def make_samples(
                          ox, oy, ou, ov, ot)
         elif pattern == "stratified":
             _run_chunked(_stratified_kernel, p0, npix, spp, key, lens, motion, square,
+                         ox, oy, ou, ov, ot)
+        elif pattern == "net5":
+            m = spp.bit_length() - 1
+            _run_chunked(_net5_kernel, p0, npix, spp, m, key, net5_columns(m), lens, motion, square,
                          ox, oy, ou, ov, ot)
         elif pattern == "sobol":
             m = spp.bit_length() - 1

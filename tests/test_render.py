@@ -293,7 +293,7 @@ def test_user_clip_planes_limit_the_covered_samples():
     assert 0.1 < red.mean() < 0.4  # about half of t times about half of u
 
 
-@pytest.mark.parametrize("pattern", ["sobol", "stratified", "random"])
+@pytest.mark.parametrize("pattern", ["sobol", "stratified", "random", "net5"])
 def test_every_sample_pattern_converges_to_the_same_image(pattern):
     """The pattern changes the noise, not the image being estimated: at 64 spp
     every pattern is close to the net's image, and far closer than at 1 spp."""

@@ -28,6 +28,7 @@ from pipeline_sim.sampling import (
     make_samples,
     map_lens,
     t_ordered_net,
+    t_ordered_net5,
 )
 
 # ---------------------------------------------------------------------------
@@ -207,7 +208,7 @@ def test_determinism_and_seed_dependence():
             assert not np.array_equal(getattr(a, f), getattr(c, f))
 
 
-@pytest.mark.parametrize("pattern", ["net", "random", "table"])
+@pytest.mark.parametrize("pattern", ["net", "random", "table", "net5"])
 def test_row_range_equals_slice(pattern):
     kw = dict(lens=True, motion=True, pattern=pattern)
     if pattern == "table":
@@ -497,3 +498,112 @@ def test_interleave_lens_points_per_group_are_stratified():
 def test_interleave_needs_spp_dividing_the_tuple_count():
     with pytest.raises(UserError, match="must divide"):
         make_samples(4, 4, 3, 0, lens=True, motion=True, pattern="interleave", interleave_tuples=16)
+
+
+# ---------------------------------------------------------------------------
+# net5: the t-ordered (t, m, 5)-net
+# ---------------------------------------------------------------------------
+
+#: The t-value of the net5 pattern's (t, m, 5)-net for spp = 2^m, as docs/pipeline.md §3 states it.
+NET5_T = {0: 0, 1: 0, 2: 1, 3: 2, 4: 2, 5: 2, 6: 2, 7: 2, 8: 3, 9: 3, 10: 3}
+
+
+def is_tnet(ints: np.ndarray, m: int, t: int) -> bool:
+    """Brute force: ``ints`` (2^m, s) holds m-digit integer coordinates; every
+    elementary box of volume 2^(t-m) (d_1 + ... + d_s = m - t leading digits)
+    holds exactly 2^t points."""
+    n, s = ints.shape
+    for split in itertools.product(range(m - t + 1), repeat=s):
+        if sum(split) != m - t:
+            continue
+        box = np.zeros(n, dtype=np.int64)
+        for c, l in zip(ints.T, split):
+            box = (box << l) | (c >> (m - l))
+        if not (np.bincount(box, minlength=2 ** (m - t)) == 2**t).all():
+            return False
+    return True
+
+
+def pixel_ints(s: SampleSet, p: int, m: int) -> np.ndarray:
+    """(spp, 5) strata of pixel p's samples in (x, y, u, v, t), square lens mapped back to [0, 1)."""
+    sl = s.pixel_slice(p)
+    a = (s.u[sl].astype(np.float64) + 1.0) / 2.0
+    b = (s.v[sl].astype(np.float64) + 1.0) / 2.0
+    return np.stack([strata(s.x[sl], m), strata(s.y[sl], m), strata(a, m), strata(b, m), strata(s.t[sl], m)], axis=1)
+
+
+@pytest.mark.parametrize("m", sorted(NET5_T))
+def test_net5_pixels_are_t_m_5_nets_in_t_order(m):
+    """Every pixel's samples form a (t, m, 5)-net with the stated t, and sorted
+    position s holds the sample of t stratum s (the tester's range lookup)."""
+    spp = 1 << m
+    s = make_samples(3, 2, spp, 19, lens=True, motion=True, pattern="net5", lens_shape="square")
+    for p in range(s.npix):
+        ints = pixel_ints(s, p, m)
+        assert is_tnet(ints, m, NET5_T[m]), f"pixel {p}"
+        assert np.array_equal(ints[:, 4], np.arange(spp))
+        assert np.all(np.diff(s.t[s.pixel_slice(p)]) > 0)
+    assert ((s.x >= 0) & (s.x < 1) & (s.y >= 0) & (s.y < 1) & (s.t >= 0) & (s.t < 1)).all()
+    if m >= 2:  # scrambled per pixel and jittered below the strata
+        assert not np.array_equal(s.x[s.pixel_slice(0)], s.x[s.pixel_slice(1)])
+        assert not (s.u * 2**m == np.floor(s.u * 2**m)).all()
+
+
+@pytest.mark.parametrize("m", range(4, 11))
+def test_net5_t_value_is_tight_and_beats_the_padded_net(m):
+    """The stated t is the smallest for the unscrambled net; the default pattern,
+    whose lens comes from a separate randomly paired 2D net, is not a net of that t."""
+    net = np.round(t_ordered_net5(m) * 2**m).astype(np.int64)
+    assert is_tnet(net, m, NET5_T[m])
+    if NET5_T[m] > 0:
+        assert not is_tnet(net, m, NET5_T[m] - 1)
+    old = make_samples(4, 2, 1 << m, 19, lens=True, motion=True, pattern="net", lens_shape="square")
+    assert not any(is_tnet(pixel_ints(old, p, m), m, NET5_T[m]) for p in range(old.npix))
+
+
+@pytest.mark.parametrize("m", [0, 1, 5, 9])
+def test_net5_points_are_sobol_with_the_index_as_time(m):
+    """Against scipy: its unscrambled 4D Sobol point k (Gray-code order) is point
+    gray(k) = k ^ (k >> 1) of the net, whose t is gray(k) / 2^m."""
+    ref = qmc.Sobol(d=4, scramble=False).random_base2(m)
+    k = np.arange(1 << m)
+    net = t_ordered_net5(m)
+    assert np.array_equal(net[k ^ (k >> 1), :4], ref)
+    assert np.array_equal(net[:, 4], k / 2**m)
+
+
+def test_net5_determinism_flags_and_bands():
+    kw = dict(lens=True, motion=True, pattern="net5")
+    a = make_samples(10, 6, 16, 11, **kw)
+    b = make_samples(10, 6, 16, 11, **kw)
+    c = make_samples(10, 6, 16, 12, **kw)
+    band = make_samples(10, 6, 16, 11, rows=(2, 5), **kw)
+    off = make_samples(10, 6, 16, 11, lens=False, motion=False, pattern="net5")
+    for f in ("x", "y", "u", "v", "t"):
+        assert np.array_equal(getattr(a, f), getattr(b, f))
+        assert not np.array_equal(getattr(a, f), getattr(c, f))
+        assert np.array_equal(getattr(band, f), getattr(a, f)[2 * 10 * 16:5 * 10 * 16])
+    assert (off.u == 0).all() and (off.v == 0).all() and (off.t == 0.5).all()
+    assert np.array_equal(off.x, a.x) and np.array_equal(off.y, a.y)
+    r2 = a.u.astype(np.float64) ** 2 + a.v.astype(np.float64) ** 2
+    assert (r2 <= 1 + 1e-6).all()
+    with pytest.raises(UserError, match="power of two"):
+        make_samples(2, 2, 12, 0, lens=True, motion=True, pattern="net5")
+
+
+def test_net5_integrates_a_moving_defocused_edge_better():
+    """RMSE over 4096 pixels (independent scrambles) of a 5D integrand, the
+    indicator of a half-space moving in t and shifted by the lens, at 256 spp
+    against its exact mean 1/2 (the half-space halves the cube through its
+    centre): the jointly stratified pattern beats the default's randomly
+    paired lens, and uniform random samples by far."""
+    w = np.array([1.0, 0.6, 0.7, 0.5, 0.9])  # x, y, a, b, t on the unit cube
+
+    def rmse(pattern):
+        s = make_samples(64, 64, 256, 3, lens=True, motion=True, pattern=pattern, lens_shape="square")
+        pts = np.stack([s.x, s.y, (s.u + 1) / 2, (s.v + 1) / 2, s.t], axis=1).astype(np.float64)
+        est = (pts @ w < w.sum() / 2).reshape(-1, 256).mean(axis=1)
+        return float(np.sqrt(np.mean((est - 0.5) ** 2)))
+
+    e = {p: rmse(p) for p in ("net5", "net", "random")}
+    assert e["net5"] < 0.95 * e["net"] and e["net5"] < 0.6 * e["random"], e
