@@ -179,7 +179,7 @@ def write_run(folder: Path, workload, result, info: dict[str, Any]) -> dict[str,
     ``passes/<pass>/`` for every pass, ``results.json``, one CSV per table, one .npy per array, one PNG
     per figure, ``images/`` (the workload's images), ``run.json``
     (everything resolved, plus ``info``) and the report. Returns run.json's content."""
-    from reports.run_report import headline, html_report, markdown_report
+    from reports.run_report import headline, html_report, markdown_report, run_figures
 
     arch = workload.arch.to_dict()
     states = {p.name: p for p in workload.states}
@@ -206,6 +206,8 @@ def write_run(folder: Path, workload, result, info: dict[str, Any]) -> dict[str,
                 "frame_cycles": total.timing.frame_cycles,
                 "headline": headline(total), "wall_time_s": total.wall_time, **info}
     write_json(folder / "run.json", run_info)
-    (folder / "report.md").write_text(markdown_report(result, run_info, files_dir=folder / "report_files"))
-    (folder / "report.html").write_text(html_report(result, run_info))
+    figures = run_figures(result)
+    (folder / "report.md").write_text(markdown_report(result, run_info, files_dir=folder / "report_files",
+                                                      figures=figures))
+    (folder / "report.html").write_text(html_report(result, run_info, figures=figures))
     return run_info

@@ -93,18 +93,28 @@ def _png_bytes(image: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def run_figures(result) -> list[tuple[str, str, str, object]]:
-    """The figures of a workload's run: ``(slug, title, caption, Figure)`` for each pass's cycle
-    breakdown, pipeline diagram and timeline (slugs prefixed with the pass name when there are
-    several passes)."""
+#: The most passes a run report draws unit figures for (those with the most frame cycles): drawing them
+#: for every pass of a workload of many passes took minutes; every pass keeps its tables.
+MAX_PASS_FIGURES = 4
+
+Figures = list[tuple[str, str, str, bytes]]
+
+
+def run_figures(result) -> Figures:
+    """The figures of a workload's run as ``(slug, title, caption, PNG bytes)``: the cycle breakdown,
+    pipeline diagram and timeline of each pass, for the :data:`MAX_PASS_FIGURES` passes with the most
+    frame cycles (in run order; slugs prefixed with the pass name when there are several passes)."""
     from reports import figures as F
 
+    ranked = sorted(result.passes, key=lambda n: -result.passes[n].timing.frame_cycles)[:MAX_PASS_FIGURES]
     out = []
     for name, r in result.passes.items():
+        if name not in ranked:
+            continue
         t = r.timing
         unit = F.queue_columns(t.queues)[0]
         prefix, of = ("", "") if len(result.passes) == 1 else (f"{name}_", f" of pass {name}")
-        out += [
+        figures = [
             (f"{prefix}cycle_breakdown", f"Per-unit cycle breakdown{of}",
              "Busy, starved (waiting for input) and blocked (waiting for room downstream) cycles of each unit.",
              F.cycle_breakdown(t.units, frame_cycles=t.frame_cycles)),
@@ -118,7 +128,15 @@ def run_figures(result) -> list[tuple[str, str, str, object]]:
              F.timeline(t.traces, t.queue_series, t.frame_cycles, queue_capacities=F.queue_capacities(t.queues),
                         queue_unit=unit)),
         ]
+        out += [(slug, title, caption, F.figure_png(fig)) for slug, title, caption, fig in figures]
     return out
+
+
+def _figures_note(result) -> str:
+    """What the figures leave out, for a run of more passes than :data:`MAX_PASS_FIGURES`."""
+    n = len(result.passes)
+    return (f"Figures of the {MAX_PASS_FIGURES} passes with the most frame cycles, of {n}; the tables above "
+            "cover every pass." if n > MAX_PASS_FIGURES else "")
 
 
 def _passes_table(result) -> pd.DataFrame:
@@ -136,14 +154,16 @@ def _title(run_info: dict) -> str:
     return str(run_info.get("workload", {}).get("file", ""))
 
 
-def markdown_report(result, run_info: dict, files_dir: str | Path | None = None) -> str:
+def markdown_report(result, run_info: dict, files_dir: str | Path | None = None,
+                    figures: Figures | None = None) -> str:
     """A short Markdown report of a workload's run (a :class:`~pipeline_sim.workload.WorkloadResult`)
     at the top of its run folder: the final pass's image, the totals, a table of the passes, the
     derived results, each pass's units and queues.
 
     With ``files_dir`` (a folder beside the Markdown file, created if needed)
     the figures are written there as PNG files and linked as
-    ``<files_dir name>/<figure>.png``; without it the report is text only.
+    ``<files_dir name>/<figure>.png``; without it the report is text only. ``figures``: those of
+    :func:`run_figures`, when the caller has drawn them already (for the HTML twin too).
     """
     import json
 
@@ -173,13 +193,11 @@ def markdown_report(result, run_info: dict, files_dir: str | Path | None = None)
         lines += [f"## Units{of}", "", _table_md(unit_table(r)), "", f"## Queues{of}", "",
                   "```\n" + r.timing.queues.to_string(index=False) + "\n```", ""]
     if files_dir is not None:
-        from reports.figures import figure_png
-
         fdir = Path(files_dir)
         fdir.mkdir(parents=True, exist_ok=True)
-        lines += ["## Figures", ""]
-        for slug, title, caption, fig in run_figures(result):
-            atomic_write_bytes(fdir / f"{slug}.png", figure_png(fig))
+        lines += ["## Figures", ""] + ([_figures_note(result), ""] if _figures_note(result) else [])
+        for slug, title, caption, png in run_figures(result) if figures is None else figures:
+            atomic_write_bytes(fdir / f"{slug}.png", png)
             lines += [f"![{title}]({fdir.name}/{slug}.png)", "", f"*{title}.* {caption}", ""]
     return "\n".join(lines)
 
@@ -188,13 +206,14 @@ def _table_md(table: pd.DataFrame) -> str:
     return table.to_markdown(index=False) if _has_tabulate() else "```\n" + table.to_string(index=False) + "\n```"
 
 
-def html_report(result, run_info: dict) -> str:
-    """The same report as self-contained HTML (image embedded, no network)."""
+def html_report(result, run_info: dict, figures: Figures | None = None) -> str:
+    """The same report as self-contained HTML (image embedded, no network); ``figures`` as for
+    :func:`markdown_report`."""
     import json
 
     total = result.total()
     hd = headline(total)
-    from reports.figures import figure_png, png_data_uri
+    from reports.figures import png_data_uri
 
     img = png_data_uri(_png_bytes(result.final.image))
     passes = (f"<h2>Passes</h2>{_passes_table(result).to_html(index=False, border=0)}"
@@ -210,9 +229,10 @@ def html_report(result, run_info: dict) -> str:
     title = html.escape(_title(run_info))
     figs = "\n".join(
         f'<figure id="fig-{slug}"><img id="img-{slug}" data-figure="{slug}" alt="{html.escape(ftitle)}" '
-        f'src="{png_data_uri(figure_png(fig))}"><figcaption><strong>{html.escape(ftitle)}.</strong> '
+        f'src="{png_data_uri(png)}"><figcaption><strong>{html.escape(ftitle)}.</strong> '
         f"{html.escape(caption)}</figcaption></figure>"
-        for slug, ftitle, caption, fig in run_figures(result))
+        for slug, ftitle, caption, png in (run_figures(result) if figures is None else figures))
+    note = f"<p>{html.escape(_figures_note(result))}</p>" if _figures_note(result) else ""
     return f"""<!doctype html>
 <html><head><meta charset="utf-8"><meta name="generator" content="pipeline-sim"><title>pipeline-sim: {title}</title>
 <style>body{{font-family:sans-serif;max-width:60em;margin:2em auto}} td,th{{padding:2px 8px;text-align:right}}
@@ -227,7 +247,7 @@ figure{{margin:1em 0}} figure img{{max-width:100%;height:auto}} figcaption{{font
 <li>wall time: {hd['wall_time_s']:.2f} s</li></ul>
 {passes}{results}{units}
 <h2>Figures</h2>
-{figs}
+{note}{figs}
 </body></html>
 """
 
@@ -291,9 +311,10 @@ def build_run_report(run_dir: str | Path, out_html: str | Path, *, force: bool =
     check_output_file(out_md, (re.compile(r"# pipeline-sim (run|sweep): [^\n]*\n"),), force=force, option="-o")
     with OutputFolder(out_html.parent / f"{out_html.stem}_files", "report figures", force=force,
                       option="-o") as figures:
-        markdown = markdown_report(result, info, files_dir=figures.staging)
+        drawn = run_figures(result)
+        markdown = markdown_report(result, info, files_dir=figures.staging, figures=drawn)
         figures.commit()
     atomic_write_bytes(out_md, markdown.replace(f"]({figures.staging.name}/", f"]({out_html.stem}_files/")
                        .encode("utf-8"))
-    atomic_write_bytes(out_html, html_report(result, info).encode("utf-8"))
+    atomic_write_bytes(out_html, html_report(result, info, figures=drawn).encode("utf-8"))
     return out_html

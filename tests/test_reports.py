@@ -457,3 +457,20 @@ def test_sweep_report_reads_the_nested_layout(sweep_dir, tmp_path):
     assert p.imgs[0]["data-figure"] == "accuracy_cost"
     assert (tmp_path / "r" / "sweep.md").is_file() and (tmp_path / "r" / "sweep_files").is_dir()
     assert sorted(x.name for x in (tmp_path / "r").iterdir()) == ["sweep.html", "sweep.md", "sweep_files"]
+
+
+def test_a_run_of_many_passes_draws_the_figures_of_its_costliest_passes(tiny_result):
+    import dataclasses
+
+    from reports.run_report import MAX_PASS_FIGURES
+
+    def scaled(r, k):  # the same pass with k times the frame cycles
+        return dataclasses.replace(r, timing=dataclasses.replace(r.timing, frame_cycles=r.timing.frame_cycles * k))
+
+    weights = [3, 9, 1, 7, 5, 2]  # six passes; the costliest four by frame cycles: p1, p3, p4, p0
+    run = WorkloadResult({f"p{i}": scaled(tiny_result, k) for i, k in enumerate(weights)})
+    text = html_report(run, {"kind": "x", "workload": {"file": "x.toml"}})
+    slugs = [img.get("data-figure") for img in _check_html(text).imgs]
+    drawn = sorted({s.split("_", 1)[0] for s in slugs if s})
+    assert MAX_PASS_FIGURES == 4 and drawn == ["p0", "p1", "p3", "p4"]
+    assert "Figures of the 4 passes with the most frame cycles, of 6" in text
