@@ -1,0 +1,176 @@
+"""Planar glossy reflections and refractions (Nilsson12 §6; docs/glossy.md).
+
+* A lens pass's texture against the accumulation of pinhole views through the same window, one per
+  sample of the same table: a float64 ray cast from each sample's lens point through its point of the
+  surface (``reference_texture``), averaged per texel as the box resolve does; for the reflection and
+  for the refraction camera.
+* With one lens point (no roughness) the reflection texture is a plain mirror: rays from the main eye
+  reflected at the surface by the law of reflection, not through the mirrored camera.
+* The refraction camera lies on the refracted central ray (Snell's law in angles, and on the normal
+  through the main eye); its rays are exact there and their error grows towards the edges.
+* The workload through ``pipeline-sim run``; bad input is one line, exit status 2.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline_sim.cli import main
+from pipeline_sim.config import load_arch
+from pipeline_sim.render import run_pass
+from pipeline_sim.shaders import standard_params
+from pipeline_sim.workload import load_workload
+
+APP = Path(__file__).resolve().parents[1] / "workloads" / "apps" / "glossy"
+
+
+def workload(tmp_path, scene="floor_scene.toml", surface="floor", **keys):
+    text = f'kind = "glossy"\nscene = "{APP / scene}"\nsurface = "{surface}"\n'
+    text += "".join(f"{k} = {json.dumps(v)}\n" for k, v in keys.items())
+    path = tmp_path / "glossy.toml"
+    path.write_text(text)
+    return path
+
+
+def setup(tmp_path, **keys):
+    from workloads.apps import glossy
+
+    w = load_workload(workload(tmp_path, **keys), load_arch())
+    surface, others, cams = w.cameras()
+    light, background = standard_params(w.scene.light), np.asarray(w.scene.background, np.float64)
+    return glossy, w, surface, others, cams, glossy.reference_triangles(w.scene, surface.index), light, background
+
+
+@pytest.mark.parametrize("scene, surface, effect, spt", [("floor_scene.toml", "floor", "reflection", 16),
+                                                        ("water_scene.toml", "water", "refraction", 8)])
+def test_lens_pass_is_the_accumulation_of_pinhole_views(tmp_path, scene, surface, effect, spt):
+    glossy, w, _, others, cams, tris, light, background = setup(
+        tmp_path, scene=scene, surface=surface, effect=effect, roughness=6.0, texels=20, samples_per_texel=spt)
+    cam = cams[effect]
+    image = run_pass(w.lens_pass(effect, cam, others, spt)).image[..., :3]
+    table = glossy.lens_table(spt, 0)
+    moving = any(o.moving for o in others)
+    reference = glossy.reference_texture(cam, table, tris, moving, light, background)
+    assert image.shape == reference.shape == (cam.size[1], cam.size[0], 3)
+    assert np.abs(image - reference).max() < 1e-4
+    # the check can tell: the same lens through another table of the same size is far off
+    other = glossy.reference_texture(cam, glossy.lens_table(spt, 1), tris, moving, light, background)
+    assert np.abs(image - other).max() > 100 * np.abs(image - reference).max()
+
+
+def test_lens_table_is_uniform_stratified_circular():
+    from workloads.apps import glossy
+
+    table = glossy.lens_table(64, 3)
+    r2 = table[:, 2] ** 2 + table[:, 3] ** 2
+    assert np.all(r2 <= 1.0) and np.all((table[:, [0, 1, 4]] >= 0) & (table[:, [0, 1, 4]] < 1))
+    # 8 x 8 jittered strata of the square, concentric-mapped (square ring k -> disc ring radius in
+    # [k/4, (k+1)/4)): 8k + 4 points in ring k, whose areas are 8k + 4 of 64 parts of the disc's; 16 in each
+    # quadrant
+    assert np.bincount((np.sqrt(r2) * 4).astype(int), minlength=4).tolist() == [4, 12, 20, 28]
+    quadrant = (table[:, 2] >= 0).astype(int) * 2 + (table[:, 3] >= 0)
+    assert np.bincount(quadrant, minlength=4).tolist() == [16] * 4
+    for col in (0, 1, 4):  # one sample in each 1/64 stratum
+        assert sorted((table[:, col] * 64).astype(int).tolist()) == list(range(64))
+
+
+def test_one_lens_point_is_a_plain_mirror(tmp_path):
+    glossy, w, surface, others, cams, tris, light, background = setup(
+        tmp_path, roughness=0.0, texels=24, samples_per_texel=4)
+    cam = cams["reflection"]
+    image = run_pass(w.lens_pass("reflection", cam, others, 4)).image[..., :3]
+    # the main eye's rays through each sample's point of the floor, reflected there (d - 2 (d.n) n)
+    table = glossy.lens_table(4, 0)
+    width, height = cam.size
+    col, row = np.meshgrid(np.arange(width), np.arange(height))
+    points = cam.plane_points(col[..., None] + table[:, 0], row[..., None] + table[:, 1]).reshape(-1, 3)
+    d = points - w.scene.camera.eye
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    mirrored = d - 2.0 * (d @ surface.normal)[:, None] * surface.normal
+    times = np.tile(table[:, 4], width * height)
+    mirror = glossy.reference_trace(tris, points, mirrored, times, light, background).reshape(height, width, 4, 3)
+    assert np.abs(image - mirror.mean(axis=2)).max() < 1e-4
+    assert np.ptp(image) > 0.3  # the floor reflects the objects, not only the sky
+
+
+@pytest.mark.parametrize("eye, look_at, ior", [((0.3, 2.2, 4.0), (0.0, -0.6, 0.0), 1.33),
+                                               ((-1.0, 0.7, 2.0), (0.5, -0.2, -1.0), 1.5),
+                                               ((0.0, 3.0, 0.2), (0.0, -1.0, 0.0), 2.4),
+                                               ((0.2, 1.0, 0.0), (0.2, 0.0, 0.0), 1.33)])
+def test_refraction_camera_lies_on_the_refracted_central_ray(tmp_path, eye, look_at, ior):
+    from workloads.apps import glossy
+
+    glossy_, w, surface, others, _, _, _, _ = setup(tmp_path, scene="water_scene.toml", surface="water")
+    eye, look_at = np.array(eye), np.array(look_at)
+    cam = glossy.refraction_camera(surface, eye, look_at, ior, 0.0, 16, others)
+    # on the normal through the main eye, on its side of the plane
+    assert np.linalg.norm(np.cross(cam.eye - eye, surface.normal)) < 1e-12
+    assert np.dot(cam.eye - surface.point, surface.normal) > 0
+    # the central ray's hit, from the parametric line and plane
+    d = (look_at - eye) / np.linalg.norm(look_at - eye)
+    hit = eye + d * (surface.point[1] - eye[1]) / d[1]
+    # Snell in angles: sin(theta_i) = ior sin(theta_t), theta_t the angle of the camera's ray to the hit
+    theta_i = math.acos(-d[1])
+    ray = (hit - cam.eye) / np.linalg.norm(hit - cam.eye)
+    theta_t = math.acos(-ray[1])
+    assert math.sin(theta_i) == pytest.approx(ior * math.sin(theta_t), abs=1e-12)
+    if theta_i == 0.0:  # normal incidence: the paraxial limit h * ior
+        assert cam.distance == pytest.approx(eye[1] * ior)
+    # its ray through the hit is the refracted central ray: no angle error there
+    assert glossy.refraction_angles(cam, surface, eye, ior, hit[None])[2][0] < 1e-9
+
+
+def test_refraction_error_grows_towards_the_edges(tmp_path):
+    glossy, w, surface, others, cams, tris, light, background = setup(
+        tmp_path, scene="water_scene.toml", surface="water", effect="refraction", texels=24)
+    eye = w.scene.camera.eye
+    hit = glossy.central_hit(surface, eye, w.scene.camera.look_at, "test")
+    rings = glossy.reference_refraction(cams["refraction"], surface, eye, hit, 1.33, tris, light, background)
+    assert len(rings) == glossy.RINGS
+    assert np.all(np.diff(rings.angle_mean_deg) > 0) and np.all(np.diff(rings.angle_max_deg) > 0)
+    assert rings.angle_max_deg.iloc[0] < 0.5 * rings.angle_max_deg.iloc[-1]
+    # against a closed form: at a texel point p the exact refracted direction and the camera's ray
+    p = cams["refraction"].plane_points(np.array([0.5]), np.array([0.5]))
+    s = (p[0] - eye) / np.linalg.norm(p[0] - eye)
+    sin_t = math.sqrt(s[0] ** 2 + s[2] ** 2) / 1.33
+    exact = np.array([s[0], 0.0, s[2]]) / math.sqrt(s[0] ** 2 + s[2] ** 2) * sin_t
+    exact[1] = -math.sqrt(1.0 - sin_t**2)
+    approx = (p[0] - cams["refraction"].eye) / np.linalg.norm(p[0] - cams["refraction"].eye)
+    angle = glossy.refraction_angles(cams["refraction"], surface, eye, 1.33, p)[2][0]
+    assert angle == pytest.approx(math.degrees(math.acos(np.clip(exact @ approx, -1, 1))), abs=1e-9)
+
+
+def test_glossy_workload_end_to_end(tmp_path):
+    path = workload(tmp_path, scene="water_scene.toml", surface="water", effect="refraction", texels=12,
+                    samples_per_texel=4, reference_samples=16, study=[1, 4, 16])
+    out = tmp_path / "run"
+    assert main(["run", str(path), "--out", str(out), "--quiet", "--spp", "1"]) == 0
+    results = json.loads((out / "results.json").read_text(), parse_constant=lambda c: pytest.fail(c))
+    assert results["samples_per_texel"] == 4
+    assert set(results["passes"]) == {"reflection", "refraction", "main", "reflection_spt1", "refraction_spt1",
+                                      "reflection_spt16", "refraction_spt16"}
+    for n in (1, 4, 16):
+        assert results[f"cycles_spt{n}"] > 0 and results[f"error_spt{n}"] >= 0
+    assert results["cycles"] == results["cycles_spt4"]
+    assert results["shader_executions"] == sum(results["passes"][p]["shader_executions"]
+                                               for p in ("reflection", "refraction"))
+    assert results["refraction_angle_centre_deg"] < 1e-9 < results["refraction_angle_max_deg"]
+    assert (out / "error_vs_samples.csv").exists() and (out / "refraction_error.csv").exists()
+
+
+@pytest.mark.parametrize("keys, message", [
+    ({"surface": "flor"}, "surface 'flor' names no object of the scene (did you mean 'floor'?)"),
+    ({"surface": "ball"}, "surface 'ball' moves"),
+    ({"surface": "box"}, "surface 'box' is not planar"),
+    ({"roughness": 50.0}, "roughness"),
+])
+def test_bad_input_is_one_line(tmp_path, capsys, keys, message):
+    path = workload(tmp_path, **{"surface": "floor", **keys})
+    assert main(["check", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err and "Traceback" not in err
