@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -96,6 +97,39 @@ def test_one_lens_point_is_a_plain_mirror(tmp_path):
     mirror = glossy.reference_trace(tris, points, mirrored, times, light, background).reshape(height, width, 4, 3)
     assert np.abs(image - mirror.mean(axis=2)).max() < 1e-4
     assert np.ptp(image) > 0.3  # the floor reflects the objects, not only the sky
+
+
+def test_main_pass_lays_the_texture_on_the_surface(tmp_path):
+    """A perfect mirror (reflectance 1, no roughness, a fine texture): where a main-pass sample sees the
+    floor, its colour is what the main eye's ray reflected there sees (ray cast), up to the texture's
+    bilinear filter at edges."""
+    glossy, w, surface, _, _, _, light, background = setup(tmp_path, roughness=0.0, texels=192, reflectance=1.0,
+                                                           samples_per_texel=1, reference_samples=0)
+    # the ball held still: a one-sample texture would show it at one time for every main-pass time
+    w.scene = w.scene.replace(image=dataclasses.replace(w.scene.image, width=48, height=36, spp=1),
+                              objects=[dataclasses.replace(o, transform_close=o.transform_open) for o in w.scene.objects])
+    main_pass = w.run().passes["main"]
+    cam, img = w.scene.camera, w.scene.image
+    x, y = np.meshgrid(np.arange(img.width), np.arange(img.height))
+    px, py = x.ravel() + main_pass.samples.x, y.ravel() + main_pass.samples.y
+    ndc = np.stack([2 * px / img.width - 1, 1 - 2 * py / img.height, -np.ones_like(px), np.ones_like(px)])
+    world = np.linalg.inv(cam.projection_matrix(img.width / img.height) @ cam.view_matrix(0.0)) @ ndc
+    d = (world[:3] / world[3]).T - cam.eye
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    everything = glossy.reference_triangles(w.scene, -1)
+    tri, bary = np.empty(len(d), np.int64), np.zeros((len(d), 2))
+    times = main_pass.samples.t.astype(np.float64)
+    glossy._nearest_hits(everything.p0, everything.p1, np.tile(cam.eye, (len(d), 1)), d, times, tri, bary)
+    on = (tri >= 0) & (everything.object_id[np.maximum(tri, 0)] == surface.index)
+    hit = cam.eye + d[on] * (np.dot(surface.point - cam.eye, surface.normal) / (d[on] @ surface.normal))[:, None]
+    mirrored = d[on] - 2.0 * (d[on] @ surface.normal)[:, None] * surface.normal
+    others = glossy.reference_triangles(w.scene, surface.index)
+    expected = glossy.reference_trace(others, hit, mirrored, times[on], light, background)
+    got = main_pass.image[..., :3].reshape(-1, 3)[on]
+    assert on.sum() > 300
+    error = np.abs(got - expected).mean(axis=1)
+    # measured: 80% of them within 6e-4, mean 0.011 (edges); the texture upside down: 0.23 and 0.077
+    assert np.quantile(error, 0.8) < 0.01 and error.mean() < 0.025
 
 
 @pytest.mark.parametrize("eye, look_at, ior", [((0.3, 2.2, 4.0), (0.0, -0.6, 0.0), 1.33),
