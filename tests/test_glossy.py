@@ -8,14 +8,19 @@
   reflected at the surface by the law of reflection, not through the mirrored camera.
 * The refraction camera lies on the refracted central ray (Snell's law in angles, and on the normal
   through the main eye); its rays are exact there and their error grows towards the edges.
-* The workload through ``pipeline-sim run``; bad input is one line, exit status 2.
+* The main pass lays the texture on the surface: a perfect mirror against the main eye's reflected rays.
+* The workload through ``pipeline-sim run``; bad input is one line, exit status 2; docs/glossy.md's
+  example runs as written.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import io
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -208,3 +213,13 @@ def test_bad_input_is_one_line(tmp_path, capsys, keys, message):
     assert main(["check", str(path)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and message in err and "Traceback" not in err
+
+
+def test_the_doc_example_runs_as_written(monkeypatch):
+    doc = Path(__file__).resolve().parents[1] / "docs" / "glossy.md"
+    (block,) = re.findall(r"```python\n(.*?)```", doc.read_text(), flags=re.S)
+    monkeypatch.chdir(doc.parents[1])
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        exec(compile(block, str(doc), "exec"), {"__name__": "glossy_example"})
+    assert "largest difference from the accumulation" in printed.getvalue()
