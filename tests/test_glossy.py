@@ -223,3 +223,26 @@ def test_the_doc_example_runs_as_written(monkeypatch):
     with contextlib.redirect_stdout(printed):
         exec(compile(block, str(doc), "exec"), {"__name__": "glossy_example"})
     assert "largest difference from the accumulation" in printed.getvalue()
+
+
+def test_the_cost_sweep_runs(tmp_path):
+    """workloads/sweeps/glossy_cost.toml's points load, and a shrunk copy of it (small textures, a small
+    reference, two points) runs with its listed results as columns."""
+    import pandas as pd
+
+    from pipeline_sim.sweep import load_sweep, run_sweep
+
+    root = Path(__file__).resolve().parents[1]
+    text = (root / "workloads" / "sweeps" / "glossy_cost.toml").read_text()
+    assert len(load_sweep(root / "workloads" / "sweeps" / "glossy_cost.toml").points) == 21
+    small = text.replace('"../apps/glossy/floor.toml"', json.dumps(str(APP / "floor.toml")))
+    small = re.sub(r'"workload.roughness" = .*', '"workload.roughness" = [4.0]\n"workload.texels" = [8]\n'
+                   '"workload.reference_samples" = [16]\n"image.spp" = [1]', small)
+    small = re.sub(r'"workload.samples_per_texel" = .*', '"workload.samples_per_texel" = [4, 16]', small)
+    (tmp_path / "sweep.toml").write_text(small)
+    frame = run_sweep(load_sweep(tmp_path / "sweep.toml"), tmp_path / "out", executor="serial", progress=False)
+    assert (frame.status == "ok").all() and len(frame) == 2
+    points = pd.read_csv(tmp_path / "out" / "points.csv")
+    assert [c for c in points.columns if c.startswith("result.")][:3] == ["result.error", "result.cycles",
+                                                                         "result.shader_executions"]
+    assert points["result.cycles"].iloc[1] > points["result.cycles"].iloc[0]
