@@ -43,7 +43,7 @@ def workload(tmp_path, scene="floor_scene.toml", surface="floor", **keys):
     return path
 
 
-def setup(tmp_path, **keys):
+def prepare(tmp_path, **keys):
     from workloads.apps import glossy
 
     w = load_workload(workload(tmp_path, **keys), load_arch())
@@ -55,7 +55,7 @@ def setup(tmp_path, **keys):
 @pytest.mark.parametrize("scene, surface, effect, spt", [("floor_scene.toml", "floor", "reflection", 16),
                                                         ("water_scene.toml", "water", "refraction", 8)])
 def test_lens_pass_is_the_accumulation_of_pinhole_views(tmp_path, scene, surface, effect, spt):
-    glossy, w, _, others, cams, tris, light, background = setup(
+    glossy, w, _, others, cams, tris, light, background = prepare(
         tmp_path, scene=scene, surface=surface, effect=effect, roughness=6.0, texels=20, samples_per_texel=spt)
     cam = cams[effect]
     image = run_pass(w.lens_pass(effect, cam, others, spt)).image[..., :3]
@@ -86,7 +86,7 @@ def test_lens_table_is_uniform_stratified_circular():
 
 
 def test_one_lens_point_is_a_plain_mirror(tmp_path):
-    glossy, w, surface, others, cams, tris, light, background = setup(
+    glossy, w, surface, others, cams, tris, light, background = prepare(
         tmp_path, roughness=0.0, texels=24, samples_per_texel=4)
     cam = cams["reflection"]
     image = run_pass(w.lens_pass("reflection", cam, others, 4)).image[..., :3]
@@ -108,11 +108,11 @@ def test_main_pass_lays_the_texture_on_the_surface(tmp_path):
     """A perfect mirror (reflectance 1, no roughness, a fine texture): where a main-pass sample sees the
     floor, its colour is what the main eye's ray reflected there sees (ray cast), up to the texture's
     bilinear filter at edges."""
-    glossy, w, surface, _, _, _, light, background = setup(tmp_path, roughness=0.0, texels=192, reflectance=1.0,
+    glossy, w, surface, _, _, _, light, background = prepare(tmp_path, roughness=0.0, texels=192, reflectance=1.0,
                                                            samples_per_texel=1, reference_samples=0)
     # the ball held still: a one-sample texture would show it at one time for every main-pass time
-    w.scene = w.scene.replace(image=dataclasses.replace(w.scene.image, width=48, height=36, spp=1),
-                              objects=[dataclasses.replace(o, transform_close=o.transform_open) for o in w.scene.objects])
+    still = [dataclasses.replace(o, transform_close=o.transform_open) for o in w.scene.objects]
+    w.scene = w.scene.replace(image=dataclasses.replace(w.scene.image, width=48, height=36, spp=1), objects=still)
     main_pass = w.run().passes["main"]
     cam, img = w.scene.camera, w.scene.image
     x, y = np.meshgrid(np.arange(img.width), np.arange(img.height))
@@ -142,9 +142,7 @@ def test_main_pass_lays_the_texture_on_the_surface(tmp_path):
                                                ((0.0, 3.0, 0.2), (0.0, -1.0, 0.0), 2.4),
                                                ((0.2, 1.0, 0.0), (0.2, 0.0, 0.0), 1.33)])
 def test_refraction_camera_lies_on_the_refracted_central_ray(tmp_path, eye, look_at, ior):
-    from workloads.apps import glossy
-
-    glossy_, w, surface, others, _, _, _, _ = setup(tmp_path, scene="water_scene.toml", surface="water")
+    glossy, w, surface, others, _, _, _, _ = prepare(tmp_path, scene="water_scene.toml", surface="water")
     eye, look_at = np.array(eye), np.array(look_at)
     cam = glossy.refraction_camera(surface, eye, look_at, ior, 0.0, 16, others)
     # on the normal through the main eye, on its side of the plane
@@ -165,7 +163,7 @@ def test_refraction_camera_lies_on_the_refracted_central_ray(tmp_path, eye, look
 
 
 def test_refraction_error_grows_towards_the_edges(tmp_path):
-    glossy, w, surface, others, cams, tris, light, background = setup(
+    glossy, w, surface, others, cams, tris, light, background = prepare(
         tmp_path, scene="water_scene.toml", surface="water", effect="refraction", texels=24)
     eye = w.scene.camera.eye
     hit = glossy.central_hit(surface, eye, w.scene.camera.look_at, "test")

@@ -31,7 +31,6 @@ import dataclasses
 import hashlib
 import math
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Annotated, Literal
 
 import numba as nb
@@ -45,7 +44,7 @@ from pipeline_sim.sampling import concentric_disk
 from pipeline_sim.scene import Camera, ImageSettings, Lens, Scene, load_scene
 from pipeline_sim.schema import key
 from pipeline_sim.settings import FORBID, Text, count, number
-from pipeline_sim.shaders import (IN_B, IN_G, IN_MATERIAL, IN_NX, IN_NY, IN_NZ, IN_OBJECT, IN_PX, IN_PY, IN_PZ,
+from pipeline_sim.shaders import (IN_B, IN_MATERIAL, IN_NX, IN_NZ, IN_OBJECT, IN_PX, IN_PY, IN_PZ,
                                   IN_R, N_INPUTS, sample_texture, standard_params, standard_shader)
 from pipeline_sim.workload import Workload, WorkloadResult
 
@@ -313,7 +312,8 @@ def reference_triangles(scene: Scene, skip: int) -> Triangles:
     def cat(f):
         return np.concatenate([f(i, o) for i, o in parts])
 
-    return Triangles(cat(lambda i, o: o.world_positions(0.0)[o.faces]), cat(lambda i, o: o.world_positions(1.0)[o.faces]),
+    return Triangles(cat(lambda i, o: o.world_positions(0.0)[o.faces]),
+                     cat(lambda i, o: o.world_positions(1.0)[o.faces]),
                      cat(lambda i, o: o.world_normals(0.0)[o.faces]), cat(lambda i, o: o.world_normals(1.0)[o.faces]),
                      cat(lambda i, o: np.asarray(o.colors, np.float64)[o.faces]),
                      cat(lambda i, o: np.full(len(o.faces), MATERIAL_IDS[o.material])),
