@@ -167,9 +167,17 @@ def pass_record(p, result, arch: dict) -> dict[str, Any]:
             "headline": headline(result), "wall_time_s": result.wall_time}
 
 
+def _files(result) -> dict[str, list[str]]:
+    """run.json's lists of a workload's arrays, figures and images, each list when it has any."""
+    files = {"arrays": [f"{name}.npy" for name in result.arrays], "figures": [f"{name}.png" for name in result.figures],
+             "images": [f"images/{name}.png" for name in result.images]}
+    return {key: names for key, names in files.items() if names}
+
+
 def write_run(folder: Path, workload, result, info: dict[str, Any]) -> dict[str, Any]:
     """A workload's run folder (docs/outputs.md) into ``folder`` (an output folder's staging):
-    ``passes/<pass>/`` for every pass, ``results.json`` and one CSV per table, ``run.json``
+    ``passes/<pass>/`` for every pass, ``results.json``, one CSV per table, one .npy per array, one PNG
+    per figure, ``images/`` (the workload's images), ``run.json``
     (everything resolved, plus ``info``) and the report. Returns run.json's content."""
     from reports.run_report import headline, html_report, markdown_report
 
@@ -181,11 +189,21 @@ def write_run(folder: Path, workload, result, info: dict[str, Any]) -> dict[str,
         passes.append(pass_record(states[name], r, arch))
     for name, table in result.tables.items():
         table.to_csv(folder / f"{file_name(name, 'table')}.csv", index=False)
+    for name, array in result.arrays.items():
+        np.save(folder / f"{file_name(name, 'array')}.npy", array)
+    for name, figure in result.figures.items():
+        figure.savefig(folder / f"{file_name(name, 'figure')}.png", dpi=100)
+    for name, image in result.images.items():
+        (folder / "images").mkdir(exist_ok=True)
+        stem = file_name(name, "image")
+        np.save(folder / "images" / f"{stem}.npy", image)
+        write_png(folder / "images" / f"{stem}.png", image)
     write_json(folder / "results.json", result.results)
     total = result.total()
     run_info = {"kind": workload.kind, "workload": {**workload.resolved(), "digest": workload.digest},
                 "arch": arch, "passes": passes, "results": sorted(result.results),
-                "tables": [f"{name}.csv" for name in result.tables], "frame_cycles": total.timing.frame_cycles,
+                "tables": [f"{name}.csv" for name in result.tables], **_files(result),
+                "frame_cycles": total.timing.frame_cycles,
                 "headline": headline(total), "wall_time_s": total.wall_time, **info}
     write_json(folder / "run.json", run_info)
     (folder / "report.md").write_text(markdown_report(result, run_info, files_dir=folder / "report_files"))

@@ -93,6 +93,8 @@ class RenderPass:
     clear_color: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
     clear_depth: float = 1.0
     sample_table: np.ndarray | None = None  # given: the pass samples it (pattern "table")
+    # the table's (x, y, t) rotated per pixel (Cranley-Patterson; its (u, v) kept: a lens region keeps its samples)
+    scramble_table: bool = False
     zcull_refresh: str = "timed"  # one of ZCULL_REFRESH
     simulation: SimOptions = field(default_factory=SimOptions)
 
@@ -158,7 +160,10 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     check_targets(where, p.targets or (Target(),), p.outputs, len(draws), p.append)
     conservative = state.conservative
     ts = 1 if conservative else arch.tile_traverser.tile_size
-    motion, lens = draw.has_motion, draw.has_lens
+    # a pass samples time (the lens) when a draw moves (is defocused) or clips it: a static prism cut by clip
+    # planes in t is a volume of xyt (Nilsson12 §5)
+    motion = draw.has_motion or any(c[0] > 0.0 or c[1] < 1.0 for c in clips)
+    lens = draw.has_lens or any(c[2] > -1.0 or c[3] < 1.0 or c[4] > -1.0 or c[5] < 1.0 for c in clips)
     shader_textures = _pass_textures(p, textures or {})
     append = None if p.append is None else (np.zeros((p.append.capacity, len(p.append.fields)), np.float32),
                                             np.zeros(1, np.int64))
@@ -170,7 +175,8 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
 
     def region_samples(rows: tuple[int, int]):
         return make_samples(draw.width, draw.height, spp, p.seed, lens=lens, motion=motion, pattern=pattern,
-                            table=p.sample_table, interleave_tuples=state.interleave_tuples, rows=rows)
+                            table=p.sample_table, scramble_table=p.scramble_table,
+                            interleave_tuples=state.interleave_tuples, rows=rows)
 
     cached_shading = state.shading_mode == "cache" and not conservative
     step = row_step(ts, arch.tile_traverser.coarse_factor, state.shading_rate if cached_shading else None)

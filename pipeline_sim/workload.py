@@ -49,11 +49,16 @@ Progress = Callable[[int, int], None] | None
 @dataclass
 class WorkloadResult:
     """What a workload's run gives: every pass's result in run order, its derived results
-    (JSON-able: ``results.json``) and its tables (one CSV file each)."""
+    (JSON-able: ``results.json``), its tables (one CSV file each), its arrays (one .npy file each), its
+    figures (one PNG file each) and its images (linear RGBA (H, W, 4), each written as ``images/<name>.npy``
+    and ``.png``: e.g. the views of a lens resolve)."""
 
     passes: dict[str, Any]  # pass name -> pipeline_sim.render.PassResult, in run order
     results: dict[str, Any] = field(default_factory=dict)
     tables: dict[str, pd.DataFrame] = field(default_factory=dict)
+    arrays: dict[str, np.ndarray] = field(default_factory=dict)  # name -> array, written as <name>.npy
+    figures: dict[str, Any] = field(default_factory=dict)  # name -> matplotlib figure, written as <name>.png
+    images: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def final(self):
@@ -205,7 +210,7 @@ def pass_state(p: Any) -> dict[str, Any]:
         "name": p.name, "spp": p.spp, "seed": p.seed,
         "state": dataclasses.asdict(p.state),
         "sample_pattern": "table" if p.sample_table is not None else p.state.sample_pattern,
-        "sample_table": p.sample_table,
+        "sample_table": p.sample_table, "scramble_table": p.scramble_table,
         "clear_color": list(p.clear_color), "clear_depth": p.clear_depth, "zcull_refresh": p.zcull_refresh,
         "shader": getattr(p.shader, "__qualname__", None) or getattr(p.shader, "__name__", repr(p.shader)),
         "shader_module": getattr(p.shader, "__module__", None),

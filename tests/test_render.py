@@ -308,3 +308,31 @@ def test_every_sample_pattern_converges_to_the_same_image(pattern):
     far = np.sqrt(np.mean((img(pattern, 1) - ref) ** 2))
     near = np.sqrt(np.mean((img(pattern, 64) - ref) ** 2))
     assert near < far / 3
+
+
+def test_scrambled_sample_table_rotates_x_y_t_per_pixel_and_keeps_u_v():
+    """Nilsson12 §2: a programmable sample table with scrambling. ``scramble_table`` rotates each pixel's
+    (x, y, t) by its own offset (mod 1) and keeps every sample's lens position, so a lens region keeps its
+    samples (Nilsson12 §8); without it every pixel samples the table as given."""
+    rng = np.random.default_rng(5)
+    table = np.column_stack([rng.uniform(0, 1, (8, 2)), rng.uniform(-1, 1, (8, 2)), rng.uniform(0, 1, 8)])
+    table = table[np.argsort(table[:, 4])]
+    q = np.array([[[-1, -1, 0.5, 1], [3, -1, 0.5, 1], [-1, 3, 0.5, 1]]], dtype=np.float64)
+    d = draw_from_clip(q, q + [0.01, 0, 0, 0], np.full((1, 3, 2), 0.01), np.full((1, 3, 2), 0.01), width=6, height=4)
+    for scramble in (False, True):
+        s = run_pass(RenderPass(draw=d, arch=load_arch(), spp=8, sample_table=table,
+                                scramble_table=scramble)).samples
+        shift = None
+        for p in range(24):
+            k = slice(p * 8, (p + 1) * 8)
+            order = np.argsort(s.u[k])  # the lens positions identify each table row
+            rows = table[np.argsort(table[:, 2])]
+            np.testing.assert_array_equal(s.u[k][order], rows[:, 2].astype(np.float32))
+            np.testing.assert_array_equal(s.v[k][order], rows[:, 3].astype(np.float32))
+            offsets = [np.mod(np.float64(getattr(s, c)[k][order]) - rows[:, i], 1.0) for c, i in
+                       (("x", 0), ("y", 1), ("t", 4))]
+            for o in offsets:  # one rotation per pixel and axis (up to float32 rounding), circularly
+                assert np.abs((o - o[0] + 0.5) % 1.0 - 0.5).max() < 1e-6
+                assert scramble or min(o[0], 1 - o[0]) < 1e-6
+            shift = (shift or set()) | {round(float(offsets[0][0]), 5)}
+        assert (len(shift) > 20) == scramble  # scrambled: each pixel its own rotation

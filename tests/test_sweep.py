@@ -360,7 +360,9 @@ def _doc_example(section: str) -> str:
     return after[after.index("```toml\n") + 8:after.index("\n```", after.index("```toml\n"))]
 
 
-WORKLOAD_SWEEP = _doc_example("A workload kind's results")
+# the documentation's example, on a small copy of the occlusion file
+WORKLOAD_SWEEP = _doc_example("A workload kind's results").replace(
+    'scene = "workloads/apps/occlusion/occlusion.toml"', 'scene = "occlusion.toml"')
 
 
 def _workload_folder(path: Path, sweep: str) -> Path:
@@ -374,6 +376,7 @@ def test_workload_keys_vary_the_file_and_results_become_columns(tmp_path):
     from reports.sweep_report import build_report
 
     out = tmp_path / "out"
+    assert 'scene = "occlusion.toml"' in WORKLOAD_SWEEP
     frame = run_sweep(load_sweep(_workload_folder(tmp_path, WORKLOAD_SWEEP)), out, executor="serial",
                       progress=False)
     assert (frame.status == "ok").all() and len(frame) == 4

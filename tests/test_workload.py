@@ -120,6 +120,7 @@ def test_two_pass_workload_against_numpy(negative, tmp_path, capsys):
     assert neg["state"]["shading_mode"] == "per_sample" and scene_pass["state"]["shading_mode"] == "cache"
     assert neg["arch_changes"] == {} and scene_pass["arch_changes"] == {}
     assert info["workload"]["image"]["spp"] == 8 and info["results"] == ["mean_rgb"]
+    assert "arrays" not in info and "figures" not in info  # listed only for a workload that returns some
     # totals: every counter the sum of the two passes'
     per_pass = pd.concat([pd.read_csv(passes / n / "counters.csv") for n in ("scene", "negative")])
     summed = per_pass.groupby(["unit", "counter"]).value.sum()
