@@ -198,6 +198,8 @@ def test_glossy_workload_end_to_end(tmp_path):
                                                for p in ("reflection", "refraction"))
     assert results["refraction_angle_centre_deg"] < 1e-9 < results["refraction_angle_max_deg"]
     assert (out / "error_vs_samples.csv").exists() and (out / "refraction_error.csv").exists()
+    assert np.load(out / "images" / "reference_refraction.npy").shape == np.load(
+        out / "passes" / "refraction" / "image.npy").shape
 
 
 @pytest.mark.parametrize("keys, message", [

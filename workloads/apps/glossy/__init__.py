@@ -528,7 +528,7 @@ class Glossy(Workload):
             "passes": {n: {"shader_executions": r.counter("shading", "shader_executions"),
                            "cycles": float(r.timing.frame_cycles)} for n, r in ran.items()},
         }
-        tables = {}
+        tables, images = {}, {}
         tris = reference_triangles(scene, surface.index)
         light, background = standard_params(scene.light), np.asarray(scene.background, np.float64)
         moving = any(o.moving for o in others)
@@ -549,6 +549,8 @@ class Glossy(Workload):
             for name, ref in zip(lens_names, refs):
                 results[f"error_{name}"] = _rmse([ran[name].image], [ref])
             tables["error_vs_samples"] = pd.DataFrame(rows)
+            images = {f"reference_{name}": np.concatenate([ref, np.ones(ref.shape[:2] + (1,))], axis=2)
+                      for name, ref in zip(lens_names, refs)}
         if s.effect == "refraction":
             cam, eye = cams["refraction"], scene.camera.eye
             hit = central_hit(surface, eye, scene.camera.look_at, str(self.path))
@@ -562,7 +564,7 @@ class Glossy(Workload):
                 "refraction_angle_max_deg": float(rings.angle_max_deg.max()),
                 "refraction_colour_error": float(np.average(rings.colour_error, weights=rings.texels)),
             })
-        return WorkloadResult(ran, results={k: _finite(v) for k, v in results.items()}, tables=tables)
+        return WorkloadResult(ran, results={k: _finite(v) for k, v in results.items()}, tables=tables, images=images)
 
     def resolved(self) -> dict:
         _, _, cams = self.cameras()
