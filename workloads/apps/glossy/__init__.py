@@ -323,29 +323,37 @@ def reference_triangles(scene: Scene, skip: int) -> Triangles:
 @nb.njit(cache=True)
 def _nearest_hits(p0, p1, origins, dirs, times, tri, bary):
     """Nearest hit (distance > 0, either side) of each ray with the triangles at the ray's time
-    (Moller-Trumbore in float64): triangle index (-1: none) and barycentrics of vertices 1 and 2."""
+    (Moller-Trumbore in float64, scalar arithmetic): triangle index (-1: none) and barycentrics of
+    vertices 1 and 2."""
     for r in range(origins.shape[0]):
         best = np.inf
         tri[r] = -1
         t = times[r]
+        ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
+        dx, dy, dz = dirs[r, 0], dirs[r, 1], dirs[r, 2]
         for k in range(p0.shape[0]):
-            a = p0[k, 0] + t * (p1[k, 0] - p0[k, 0])
-            e1 = p0[k, 1] + t * (p1[k, 1] - p0[k, 1]) - a
-            e2 = p0[k, 2] + t * (p1[k, 2] - p0[k, 2]) - a
-            d = dirs[r]
-            px, py, pz = d[1] * e2[2] - d[2] * e2[1], d[2] * e2[0] - d[0] * e2[2], d[0] * e2[1] - d[1] * e2[0]
-            det = e1[0] * px + e1[1] * py + e1[2] * pz
+            ax = p0[k, 0, 0] + t * (p1[k, 0, 0] - p0[k, 0, 0])
+            ay = p0[k, 0, 1] + t * (p1[k, 0, 1] - p0[k, 0, 1])
+            az = p0[k, 0, 2] + t * (p1[k, 0, 2] - p0[k, 0, 2])
+            e1x = p0[k, 1, 0] + t * (p1[k, 1, 0] - p0[k, 1, 0]) - ax
+            e1y = p0[k, 1, 1] + t * (p1[k, 1, 1] - p0[k, 1, 1]) - ay
+            e1z = p0[k, 1, 2] + t * (p1[k, 1, 2] - p0[k, 1, 2]) - az
+            e2x = p0[k, 2, 0] + t * (p1[k, 2, 0] - p0[k, 2, 0]) - ax
+            e2y = p0[k, 2, 1] + t * (p1[k, 2, 1] - p0[k, 2, 1]) - ay
+            e2z = p0[k, 2, 2] + t * (p1[k, 2, 2] - p0[k, 2, 2]) - az
+            px, py, pz = dy * e2z - dz * e2y, dz * e2x - dx * e2z, dx * e2y - dy * e2x
+            det = e1x * px + e1y * py + e1z * pz
             if det == 0.0:
                 continue
-            s = origins[r] - a
-            b1 = (s[0] * px + s[1] * py + s[2] * pz) / det
+            sx, sy, sz = ox - ax, oy - ay, oz - az
+            b1 = (sx * px + sy * py + sz * pz) / det
             if b1 < 0.0 or b1 > 1.0:
                 continue
-            qx, qy, qz = s[1] * e1[2] - s[2] * e1[1], s[2] * e1[0] - s[0] * e1[2], s[0] * e1[1] - s[1] * e1[0]
-            b2 = (d[0] * qx + d[1] * qy + d[2] * qz) / det
+            qx, qy, qz = sy * e1z - sz * e1y, sz * e1x - sx * e1z, sx * e1y - sy * e1x
+            b2 = (dx * qx + dy * qy + dz * qz) / det
             if b2 < 0.0 or b1 + b2 > 1.0:
                 continue
-            dist = (e2[0] * qx + e2[1] * qy + e2[2] * qz) / det
+            dist = (e2x * qx + e2y * qy + e2z * qz) / det
             if 0.0 < dist < best:
                 best = dist
                 tri[r] = k
