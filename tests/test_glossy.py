@@ -69,6 +69,26 @@ def test_lens_pass_is_the_accumulation_of_pinhole_views(tmp_path, scene, surface
     assert np.abs(image - other).max() > 100 * np.abs(image - reference).max()
 
 
+@pytest.mark.parametrize("scene, surface, effect", [("floor_scene.toml", "floor", "reflection"),
+                                                    ("water_scene.toml", "water", "refraction")])
+def test_window_encloses_the_surface_on_the_near_and_focus_plane(tmp_path, scene, surface, effect):
+    """Through the scene camera's own matrices (gluLookAt, glFrustum): the surface's vertices project to
+    the frame's edges and corners, at depth -1 (the near plane), with no lens shift (the focus plane)."""
+    from pipeline_sim.draw import lens_shift
+
+    glossy, w, found, *_ = prepare(tmp_path, scene=scene, surface=surface, effect=effect, roughness=5.0)
+    cam = w.cameras()[2][effect].camera()
+    corners = np.concatenate([found.vertices, np.ones((len(found.vertices), 1))], axis=1)
+    proj = cam.projection_matrix(1.0)
+    clip = corners @ (proj @ cam.view_matrix(0.0)).T
+    ndc = clip[:, :3] / clip[:, 3:]
+    assert np.allclose(ndc[:, 2], -1.0, atol=1e-12)
+    assert np.allclose([ndc[:, 0].min(), ndc[:, 0].max(), ndc[:, 1].min(), ndc[:, 1].max()], [-1, 1, -1, 1],
+                       atol=1e-12)
+    assert cam.lens.radius == pytest.approx(cam.near * math.tan(math.radians(5.0)))
+    assert np.allclose(lens_shift(proj, clip[:, 3], cam.lens.radius, cam.lens.focus_distance), 0.0, atol=1e-12)
+
+
 def test_lens_table_is_uniform_stratified_circular():
     from workloads.apps import glossy
 
