@@ -221,3 +221,24 @@ def test_the_documented_example_runs_as_written():
         exec(compile(block, str(DOC), "exec"), scope)
     assert "penumbra" in printed.getvalue()
     assert scope["measured"] == pytest.approx(scope["closed_form"], rel=0.05)
+
+
+def test_the_cost_sweep_runs_the_workload_over_k_and_resolution(tmp_path):
+    """workloads/sweeps/shadows_cost.toml as shipped (its 9 points, validated against the kind's file),
+    then its form on a tiny file: each point's error and the 5D pair's cycles as result columns."""
+    import pandas as pd
+
+    from pipeline_sim.sweep import load_sweep
+
+    shipped = Path(__file__).resolve().parent.parent / "workloads" / "sweeps" / "shadows_cost.toml"
+    points = load_sweep(shipped).points
+    assert sorted((p["workload.tuples"], p["workload.shadow_map"]) for p in points) == [
+        (k, r) for k in (16, 64, 256) for r in (64, 128, 256)]
+    (tmp_path / "small.toml").write_text('kind = "shadows"\nwidth = 16\nheight = 12\nreference_samples = 16\n')
+    text = shipped.read_text().replace("../apps/shadows/moving_object.toml", "small.toml")
+    (tmp_path / "sweep.toml").write_text(text.replace("[16, 64, 256]", "[2, 4]").replace("[64, 128, 256]", "[16]"))
+    assert main(["sweep", str(tmp_path / "sweep.toml"), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    table = pd.read_csv(tmp_path / "out" / "points.csv")
+    assert list(table["workload.tuples"]) == [2, 4] and (table.status == "ok").all()
+    assert (table["result.cycles"] == table["frame_cycles"]).all()  # no accumulation passes: the 5D pair's
+    assert table["result.error"].notna().all() and "result.accumulation_cycles" not in table
