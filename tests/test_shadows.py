@@ -59,8 +59,9 @@ def cast(origins: np.ndarray, dirs: np.ndarray, tris: np.ndarray) -> np.ndarray:
 
 def numpy_accumulation(s: S.Settings):
     """Per tuple k: the shadow map (distance along the light's axis, inf where no triangle) and, per pixel
-    centre, whether a triangle is seen and whether the seen point is lit; (maps (K, R, R), seen (H, W, K),
-    lit (H, W, K))."""
+    centre, whether a triangle is seen, whether the seen point is lit, whether it lies within one texel of
+    a shadow edge and its percentage-closer visibility over 3 x 3 texels: maps (K, R, R), then (H, W, K)
+    each."""
     meshes = S.scene_meshes(s)
     light, camera = S.light_camera(s), S.camera_of(s)
     lproj, lview = light.projection_matrix(1.0), light.view_matrix()
@@ -101,10 +102,13 @@ def numpy_accumulation(s: S.Settings):
         # within one texel of a shadow edge: the 3 x 3 texels around give both answers
         near = [maps[-1][np.clip(row + dy, 0, res - 1), np.clip(col + dx, 0, res - 1)] >= w - s.bias
                 for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
-        lit[-1] = np.stack([lit[-1], inside & np.any(near, axis=0) & ~np.all(near, axis=0)])
+        # and the share of those 3 x 3 texels that pass: percentage-closer filtering of radius 1
+        lit[-1] = np.stack([lit[-1], inside & np.any(near, axis=0) & ~np.all(near, axis=0),
+                            np.where(inside, np.mean(near, axis=0), 1.0)])
     shape = (s.height, s.width, s.tuples)
-    both = np.stack(lit, axis=-1)  # (2, pixels, K)
-    return (np.stack(maps), np.stack(seen, -1).reshape(shape), both[0].reshape(shape), both[1].reshape(shape))
+    every = np.stack(lit, axis=-1)  # (3, pixels, K)
+    return (np.stack(maps), np.stack(seen, -1).reshape(shape), every[0].reshape(shape).astype(bool),
+            every[1].reshape(shape).astype(bool), every[2].reshape(shape))
 
 
 @pytest.mark.parametrize("lens_radius", [0.0, 0.08])
@@ -112,7 +116,7 @@ def test_five_d_pass_equals_an_accumulation_buffer_up_to_shadow_map_resolution(l
     s = S.Settings(width=32, height=24, tuples=16, shadow_map=64, light_size=1.5, lens_radius=lens_radius,
                    focus_distance=8.0)
     res = five_d(s, per_sample=True)
-    maps, seen, lit, edge = numpy_accumulation(s)
+    maps, seen, lit, edge, _ = numpy_accumulation(s)
     # the shadow maps: layer k of the light pass's per-sample depth, as distance along the light's axis
     light = S.light_camera(s).projection_matrix(1.0)
     z = res["light"].depth.transpose(2, 0, 1).astype(np.float64)
@@ -134,6 +138,16 @@ def test_five_d_pass_equals_an_accumulation_buffer_up_to_shadow_map_resolution(l
     # and so the image: the per-pixel mean of the accumulation buffer
     acc = np.where(seen.any(axis=2), (lit & seen).sum(axis=2) / np.maximum(seen.sum(axis=2), 1), 1.0)
     assert np.abs(S.visibility(res["camera"]) - acc).mean() < 0.005
+
+
+def test_percentage_closer_lookups_against_the_accumulation_buffer():
+    """pcf = 1: each lookup is the share of 3 x 3 texels passing; against numpy's over its own maps."""
+    s = S.Settings(width=32, height=24, tuples=8, shadow_map=64, light_size=1.5, pcf=1)
+    data = five_d(s, per_sample=True)["camera"].sample_data["samples"]
+    _, seen, _, _, pcf = numpy_accumulation(s)
+    diff = np.abs(data[..., 0] - pcf)[seen]
+    assert 0.01 < ((pcf[seen] > 0) & (pcf[seen] < 1)).mean()  # filtered values in view
+    assert np.mean(diff > 1e-6) < 0.01 and diff.max() <= 3 / 9 + 1e-6  # a window one texel over at most
 
 
 def test_the_pipeline_accumulation_passes_match_the_five_d_pass(tmp_path):
