@@ -111,10 +111,10 @@ def numpy_accumulation(s: S.Settings):
             every[1].reshape(shape).astype(bool), every[2].reshape(shape))
 
 
-@pytest.mark.parametrize("lens_radius", [0.0, 0.08])
-def test_five_d_pass_equals_an_accumulation_buffer_up_to_shadow_map_resolution(lens_radius):
-    s = S.Settings(width=32, height=24, tuples=16, shadow_map=64, light_size=1.5, lens_radius=lens_radius,
-                   focus_distance=8.0)
+@pytest.mark.parametrize("light_shape, lens_radius", [("square", 0.0), ("square", 0.08), ("disk", 0.0)])
+def test_five_d_pass_equals_an_accumulation_buffer_up_to_shadow_map_resolution(light_shape, lens_radius):
+    s = S.Settings(width=32, height=24, tuples=16, shadow_map=64, light_shape=light_shape, light_size=1.5,
+                   lens_radius=lens_radius, focus_distance=8.0)
     res = five_d(s, per_sample=True)
     maps, seen, lit, edge, _ = numpy_accumulation(s)
     # the shadow maps: layer k of the light pass's per-sample depth, as distance along the light's axis
