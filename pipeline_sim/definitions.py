@@ -46,7 +46,8 @@ INPUTS = (
     "material", "object", "triangle",
     "t_lo", "t_hi", "u_lo", "u_hi", "v_lo", "v_hi", "z_lo", "z_hi",  # conservative mode only
     # per-sample shading only (else -1): the sample's index within its pixel, and the index of its (u, v, t)
-    # in the pass's fixed tuple set (the interleave pattern's tuples; -1 for other patterns)
+    # in the pass's fixed tuple set (the interleave pattern's tuples; a sample table's rows sorted by t, so
+    # the sample index; -1 for other patterns)
     "sample", "tuple",
 )
 N_INPUTS = len(INPUTS)

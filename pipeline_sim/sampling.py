@@ -647,6 +647,9 @@ class SampleSet:
     # each sample's index into them (int8); None for every other pattern
     tuples: np.ndarray | None = None
     tup: np.ndarray | None = None
+    # an unscrambled sample table: sample s of every pixel is row s of the t-sorted table, and that row
+    # is its tuple (the pass's fixed tuple set is the table itself)
+    table_rows: bool = False
 
     @property
     def npix(self) -> int:
@@ -815,7 +818,7 @@ def make_samples(
             _run_chunked(_table_kernel, p0, npix, spp, key, arr, scramble_table, lens,
                          motion, ox, oy, ou, ov, ot)
     return SampleSet(x=ox, y=oy, u=ou, v=ov, t=ot, spp=spp, width=width, height=nrows,
-                     lens=lens, motion=motion, row0=r0)
+                     lens=lens, motion=motion, row0=r0, table_rows=pattern == "table" and not scramble_table)
 
 
 # ---------------------------------------------------------------------------

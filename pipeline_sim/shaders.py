@@ -16,8 +16,11 @@ A shader shades a batch of shading points at once::
             ...
 
 Lookup helpers: ``sample_layer`` (bilinear on one layer), ``fetch`` (one
-texel), ``sample_texture`` (bilinear RGBA); ``append_record`` appends a
-record to the append buffer.
+texel), ``sample_texture`` (bilinear RGBA), ``project`` (a point through a
+4x4 matrix among the parameters, to texture coordinates: one matrix per
+layer of a texture array gives a per-tuple projection), ``compare_layer``
+(a depth comparison over a texel neighbourhood, percentage-closer);
+``append_record`` appends a record to the append buffer.
 
 Workloads bring their own shaders in the same form. In standard mode the
 inputs describe the surface point (world position, normal, color at the
@@ -130,6 +133,35 @@ def fetch(texture, x, y, layer):
     """Texel (column ``x``, row ``y``) of layer ``layer`` of ``texture`` (H, W, L), no filtering; the
     coordinates are clamped to the texture."""
     return texture[min(max(int(y), 0), texture.shape[0] - 1), min(max(int(x), 0), texture.shape[1] - 1), layer]
+
+
+@nb.njit(cache=True)
+def project(params, base, px, py, pz):
+    """The point (px, py, pz) through the 4x4 matrix held row-major in ``params[base:base + 16]`` (clip
+    space of a camera that rendered a texture): returns (s, t, z/w, w), (s, t) the texture coordinates of
+    ``sample_layer`` (t=0 at the top row; [0, 1]^2 inside the frame). With one matrix per layer of a
+    texture array at ``base = first + 16 * k``, layer k's own projection (Nilsson12 §7)."""
+    x = params[base] * px + params[base + 1] * py + params[base + 2] * pz + params[base + 3]
+    y = params[base + 4] * px + params[base + 5] * py + params[base + 6] * pz + params[base + 7]
+    z = params[base + 8] * px + params[base + 9] * py + params[base + 10] * pz + params[base + 11]
+    w = params[base + 12] * px + params[base + 13] * py + params[base + 14] * pz + params[base + 15]
+    return 0.5 * (x / w + 1.0), 0.5 * (1.0 - y / w), z / w, w
+
+
+@nb.njit(cache=True)
+def compare_layer(texture, layer, s, t, ref, radius):
+    """The share of the (2 radius + 1)^2 texels of layer ``layer`` around the one holding (s, t) (each
+    clamped to the texture, as ``fetch``; (s, t) too, NaN as 0) whose value is at least ``ref``: a
+    depth-map test, lit where ``ref`` is not behind the stored depth, percentage-closer filtered for
+    ``radius`` > 0."""
+    cx = int((min(s, 1.0) if s > 0.0 else 0.0) * texture.shape[1])
+    cy = int((min(t, 1.0) if t > 0.0 else 0.0) * texture.shape[0])
+    passed = 0
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            if ref <= fetch(texture, cx + dx, cy + dy, layer):
+                passed += 1
+    return passed / (2 * radius + 1) ** 2
 
 
 @nb.njit(cache=True)

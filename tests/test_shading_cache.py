@@ -308,7 +308,7 @@ def _shading_unit(cfg, mode, rate, ref, width, height, spp, shader, rng):
                               y=rng.random(npix * spp).astype(np.float32),
                               u=rng.uniform(-1, 1, npix * spp).astype(np.float32),
                               v=rng.uniform(-1, 1, npix * spp).astype(np.float32),
-                              t=rng.random(npix * spp).astype(np.float32), tup=None)
+                              t=rng.random(npix * spp).astype(np.float32), tup=None, table_rows=False)
     table = SimpleNamespace(ref=ref)
     return Shading(cfg, mode, rate, draw, table, samples, shader, np.array([rate], np.float32), None, False)
 

@@ -145,6 +145,32 @@ def test_append_buffer_holds_every_covered_sample_with_its_indices(pattern):
         np.testing.assert_array_equal(rec[:, 4], res.samples.tup[(y * W + x) * res.samples.spp + s])
 
 
+@nb.njit(cache=True)
+def _append_tuple_shader(inputs, params, textures, out, append):
+    """Appends (sample index, tuple index, u, v, t) of each shaded sample."""
+    rec = np.empty(5, np.float32)
+    for i in range(inputs.shape[1]):
+        rec[0], rec[1] = inputs[IN_SAMPLE, i], inputs[IN_TUPLE, i]
+        rec[2], rec[3], rec[4] = inputs[IN_U, i], inputs[IN_V, i], inputs[IN_T, i]
+        append_record(append, rec)
+        for c in range(out.shape[1]):
+            out[i, c] = 1.0
+
+
+def test_a_sample_table_row_is_the_tuple_index():
+    """With a sample table (its rows not in t order here), the tuple index of a sample is its row in the
+    table sorted by t, and its (u, v, t) that row's: the tuple k of every pixel (Nilsson12 §7)."""
+    rng = np.random.default_rng(4)
+    table = np.column_stack([rng.random((6, 2)), rng.uniform(-1, 1, (6, 2)), rng.permutation(6) / 6 + 0.05])
+    p = _count_pass(_two_triangles(), append=AppendBuffer(("sample", "tuple", "u", "v", "t"), 10_000), spp=6,
+                    sample_table=table)
+    p.shader = _append_tuple_shader
+    rec = run_pass(p).append.records
+    ordered = table[np.argsort(table[:, 4])].astype(np.float32)
+    assert len(rec) > 50 and np.array_equal(rec[:, 0], rec[:, 1])
+    np.testing.assert_array_equal(rec[:, 2:], ordered[rec[:, 1].astype(int)][:, 2:])
+
+
 def test_append_buffer_keeps_the_first_records_and_counts_the_overflow():
     draw = _two_triangles()
     fields = ("x", "y", "sample", "triangle", "tuple")

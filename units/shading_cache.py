@@ -352,7 +352,7 @@ class Shading:
                                self.draw.pos, self.draw.nrm, self.draw.color, self.draw.material,
                                self.draw.object_id, inputs, ops)
             inputs[IN_SAMPLE] = batch["sidx"]
-            inputs[IN_TUPLE] = -1 if s.tup is None else s.tup[k]
+            inputs[IN_TUPLE] = s.tup[k] if s.tup is not None else batch["sidx"] if s.table_rows else -1
             color = self._shade(inputs)
             events[EV_EXEC] += n  # 1:1 shading: no cache lookups
         out = dict(batch)
