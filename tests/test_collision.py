@@ -217,6 +217,26 @@ def test_random_small_pairs_never_miss_an_exact_contact(specs, resolution):
         assert all((w.bodies[0].name, w.bodies[1].name) in pairs for pairs in found.values()), found
 
 
+SQUARE = [[-1.0, 0.0, -1.0], [1.0, 0.0, -1.0], [1.0, 0.0, 1.0], [-1.0, 0.0, 1.0]]
+
+
+def test_flat_sheets_seen_edge_on_collide_in_every_pcs():
+    """Two square sheets of two triangles each: one lies still in the plane y = 0, the other stands in
+    a plane x = const and sweeps along x through it (they cross for t in [1/3, 2/3]). The first is
+    edge-on in the x and z views, the second in the y and z views: a segment of zero area, which still
+    touches pixels. Every method keeps the pair (triangle setup drops zero-area triangles only in
+    standard mode; it used to drop them in conservative mode too, separating the pair in the x view)."""
+    lying = C.ObjectSpec(shape="mesh", name="lying", vertices=SQUARE, faces=[[0, 1, 2], [0, 2, 3]])
+    standing = C.ObjectSpec(shape="mesh", name="standing", vertices=[[y, x, z] for x, y, z in SQUARE],
+                            faces=[[0, 1, 2], [0, 2, 3]], start=[-3.0, 0.0, 0.0], end=[3.0, 0.0, 0.0])
+    w = C.Collision("sheets.toml", load_arch())
+    w.resolution = 16
+    w.bodies = [C.make_body(spec, i, "sheets") for i, spec in enumerate((lying, standing))]
+    assert fcl_colliding(*w.bodies) and not fcl_colliding(*w.bodies, times=[0.0, 0.3, 0.7, 1.0])
+    found = pcs(w.run().results)
+    assert all(("lying", "standing") in pairs for pairs in found.values()), found
+
+
 @pytest.mark.parametrize("axis", [0, 1, 2])
 def test_union_box_holds_every_point_of_the_object(root, tmp_path, axis):
     """Dense (t, barycentric) samples of each triangle of both objects, projected by hand: the pixel
