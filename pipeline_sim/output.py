@@ -169,7 +169,7 @@ def pass_record(p, result, arch: dict) -> dict[str, Any]:
 
 def write_run(folder: Path, workload, result, info: dict[str, Any]) -> dict[str, Any]:
     """A workload's run folder (docs/outputs.md) into ``folder`` (an output folder's staging):
-    ``passes/<pass>/`` for every pass, ``results.json`` and one CSV per table, ``run.json``
+    ``passes/<pass>/`` for every pass, ``results.json``, one CSV per table, ``images/`` (derived images), ``run.json``
     (everything resolved, plus ``info``) and the report. Returns run.json's content."""
     from reports.run_report import headline, html_report, markdown_report
 
@@ -181,6 +181,10 @@ def write_run(folder: Path, workload, result, info: dict[str, Any]) -> dict[str,
         passes.append(pass_record(states[name], r, arch))
     for name, table in result.tables.items():
         table.to_csv(folder / f"{file_name(name, 'table')}.csv", index=False)
+    for name, image in result.images.items():
+        (folder / "images").mkdir(exist_ok=True)
+        np.save(folder / "images" / f"{file_name(name, 'image')}.npy", image)
+        write_png(folder / "images" / f"{name}.png", image)
     write_json(folder / "results.json", result.results)
     total = result.total()
     run_info = {"kind": workload.kind, "workload": {**workload.resolved(), "digest": workload.digest},

@@ -54,6 +54,8 @@ class WorkloadResult:
     passes: dict[str, Any]  # pass name -> pipeline_sim.render.PassResult, in run order
     results: dict[str, Any] = field(default_factory=dict)
     tables: dict[str, pd.DataFrame] = field(default_factory=dict)
+    #: derived images, (H, W, 3) linear RGB in [0, 1] each, written as images/<name>.png and .npy
+    images: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def final(self):

@@ -308,6 +308,15 @@ def overlaps(box_a: np.ndarray, box_b: np.ndarray) -> dict[str, np.ndarray]:
     return {"t": t, "z": z, "tz": t & z}
 
 
+def overlap_image(over: dict[str, np.ndarray]) -> np.ndarray:
+    """A view's overlaps (:func:`overlaps`) in three colours, as Nilsson12 Fig. 6 draws them: red where
+    the union boxes overlap in time, blue where in depth, so purple where in both; (H, W, 3) float32."""
+    image = np.zeros(over["t"].shape + (3,), np.float32)
+    image[..., 0] = over["t"]
+    image[..., 2] = over["z"]
+    return image
+
+
 def swept_boxes_meet(a: Body, b: Body) -> bool:
     """Whether the bounding boxes of two swept volumes meet (pairs that do not are never drawn)."""
     (lo_a, hi_a), (lo_b, hi_b) = a.swept_box(), b.swept_box()
@@ -349,6 +358,7 @@ class Collision(Workload):
         self.progress = progress
         self.cost = {m: {"passes": 0, "pixels_shaded": 0, "cycles": 0.0} for m in METHODS}
         self.rows: dict[str, list[dict[str, Any]]] = {"union_views": [], "fragment_views": []}
+        self.images: dict[str, np.ndarray] = {}
         pcs: dict[str, list[list[str]]] = {m: [] for m in METHODS}
         pairs = list(itertools.combinations(range(len(self.bodies)), 2))
         candidates = [(i, j) for i, j in pairs if swept_boxes_meet(self.bodies[i], self.bodies[j])]
@@ -364,7 +374,7 @@ class Collision(Workload):
             "methods": {m: {"pcs_size": len(pcs[m]), "pcs": pcs[m], **self.cost[m]} for m in METHODS},
         }
         tables = {k: pd.DataFrame(v) for k, v in self.rows.items()}
-        return WorkloadResult(self.passes, results=results, tables=tables)
+        return WorkloadResult(self.passes, results=results, tables=tables, images=self.images)
 
     def _view(self, p, methods: list[str]):
         """Run pass ``p``, its cost charged to ``methods``."""
@@ -387,6 +397,7 @@ class Collision(Workload):
             res = self._view(box_pass(a, b, axis, self.resolution, self.arch, f"{pair}.{AXES[axis]}"),
                              [m for m in kept if kept[m]])
             over = overlaps(res.images["a"][0], res.images["b"][0])
+            self.images[f"{pair}.{AXES[axis]}"] = overlap_image(over)
             self.rows["union_views"].append({
                 "pair": pair, "axis": AXES[axis], "pixels_shaded": res.counter("shading", "shader_executions"),
                 "cycles": res.timing.frame_cycles, **{f"pixels_{k}": int(v.sum()) for k, v in over.items()}})
