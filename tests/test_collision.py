@@ -133,6 +133,15 @@ def test_toaster_dodges_the_ball_in_time_only(root, tmp_path):
     gaps = [fcl.distance(fcl_object(toaster.at(t), toaster.faces), fcl_object(ball.at(t), ball.faces),
                          fcl.DistanceRequest(), fcl.DistanceResult()) for t in TIMES]
     assert min(gaps) > 0.1
+    # it has two slots: a thin rod put down into each, through the top's plane, touches it only
+    # without them
+    plain = C.make_body(C.ObjectSpec(shape="rounded_box", size=[0.8, 0.5, 0.6], subdivisions=3,
+                                     start=[-1.5, 0.0, 0.0]), 0, "plain")
+    for x0, x1, z0, z1 in C.slot_rects(np.array([0.8, 0.5, 0.6]), 2):
+        rod = fcl.CollisionObject(fcl.Box(0.02, 0.6, 0.02), fcl.Transform([(x0 + x1) / 2 - 1.5, 0.3, (z0 + z1) / 2]))
+        touches = [fcl.collide(rod, fcl_object(body.v0, body.faces), fcl.CollisionRequest(), fcl.CollisionResult())
+                   for body in (toaster, plain)]
+        assert touches == [0, 1], touches
     # ... while the swept volumes overlap: a point of the ball at t=0 is inside the toaster at t=1
     assert np.all(np.abs(ball.at(0.0).mean(axis=0) - toaster.at(1.0).mean(axis=0)) < [0.8, 0.5, 0.6])
     found = pcs(results)

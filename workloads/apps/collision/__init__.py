@@ -90,6 +90,8 @@ class ObjectSpec:
                      default_factory=lambda: [0.5, 0.5, 0.5])
     subdivisions: count(0, 5) = key("icosphere: subdivisions of the icosahedron; rounded box: cells per "
                                     "face side minus one", default=2)
+    slots: count(0, 4) = key("rounded box: slots cut into its top (+y) face, along x, side by side in z (a "
+                             "toaster)", default=0)
     vertices: list[Vec3] = key("mesh: the vertices, in object space", default_factory=list)
     faces: list[Face] = key("mesh: triangles, three vertex indices each", default_factory=list)
     start: Vec3 = key("position of the object's origin at t=0", default_factory=lambda: [0.0, 0.0, 0.0])
@@ -140,33 +142,62 @@ class Body:
         return both.min(axis=0), both.max(axis=0)
 
 
-def rounded_box(half: np.ndarray, cells: int) -> tuple[np.ndarray, np.ndarray]:
+def slot_rects(half: np.ndarray, slots: int) -> list[tuple[float, float, float, float]]:
+    """The openings (x0, x1, z0, z1) of ``slots`` toaster slots in the top face of a rounded box of half
+    extents ``half``: along x, side by side in z, inside the face's flat part."""
+    inner = half - 0.25 * float(np.min(half))
+    width = 2.0 * inner[2] / (2 * slots + 1)  # slots and the walls between them share the flat width
+    return [(-0.7 * inner[0], 0.7 * inner[0], -inner[2] + (2 * k + 1) * width, -inner[2] + (2 * k + 2) * width)
+            for k in range(slots)]
+
+
+def rounded_box(half: np.ndarray, cells: int, slots: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """A box of half extents ``half`` with edges and corners rounded by a quarter of its smallest half
     extent: each face a grid of ``cells`` x ``cells`` squares, every point of the unit cube's surface
-    moved to the nearest point of the inner box plus the rounding radius along the offset."""
+    moved to the nearest point of the inner box plus the rounding radius along the offset. With
+    ``slots``, a toaster: the top (+y) face's grid also has the slots' edges, its cells inside a slot
+    (:func:`slot_rects`) are left out, and each slot is a pit of four walls and a floor, 0.7 of the
+    box's height deep (the walls meet the face's cells at their corners or along their sides)."""
     radius = 0.25 * float(np.min(half))
     inner = half - radius
-    s = np.linspace(-1.0, 1.0, cells + 1)
+    grids = [np.linspace(-1.0, 1.0, cells + 1)] * 3
+    rects = slot_rects(half, slots)
+    if rects:
+        grids[0] = np.union1d(grids[0], [r[k] / half[0] for r in rects for k in (0, 1)])
+        grids[2] = np.union1d(grids[2], [r[k] / half[2] for r in rects for k in (2, 3)])
     pts, faces = [], []
     for axis in range(3):
         for sign in (-1.0, 1.0):
             a, b = (axis + 1) % 3, (axis + 2) % 3
             base = len(pts)
-            for i in s:
-                for j in s:
+            for i in grids[a]:
+                for j in grids[b]:
                     p = np.zeros(3)
                     p[axis], p[a], p[b] = sign, i, j
                     pts.append(p)
-            n = cells + 1
-            for i in range(cells):
-                for j in range(cells):
+            n = len(grids[b])
+            for i in range(len(grids[a]) - 1):
+                for j in range(n - 1):
+                    centre = np.zeros(3)  # the cell's centre, on the unit cube
+                    centre[axis], centre[a], centre[b] = sign, grids[a][i:i + 2].mean(), grids[b][j:j + 2].mean()
+                    if axis == 1 and sign > 0 and any(x0 < centre[0] * half[0] < x1 and z0 < centre[2] * half[2] < z1
+                                                      for x0, x1, z0, z1 in rects):
+                        continue
                     v = base + i * n + j
                     faces += [(v, v + n, v + n + 1), (v, v + n + 1, v + 1)]
     cube = np.array(pts) * half
     core = np.clip(cube, -inner, inner)
     offset = cube - core
-    verts = core + radius * offset / np.linalg.norm(offset, axis=1, keepdims=True)
-    return verts, np.array(faces, np.int64)
+    verts = [core + radius * offset / np.linalg.norm(offset, axis=1, keepdims=True)]
+    for x0, x1, z0, z1 in rects:
+        base = sum(len(v) for v in verts)
+        top, bottom = half[1], half[1] - 1.4 * half[1]
+        verts.append(np.array([[x, y, z] for y in (top, bottom) for x, z in ((x0, z0), (x1, z0), (x1, z1), (x0, z1))]))
+        for k in range(4):  # the walls, then the floor
+            m = (k + 1) % 4
+            faces += [(base + k, base + m, base + 4 + m), (base + k, base + 4 + m, base + 4 + k)]
+        faces += [(base + 4, base + 5, base + 6), (base + 4, base + 6, base + 7)]
+    return np.concatenate(verts), np.array(faces, np.int64)
 
 
 def make_body(spec: ObjectSpec, index: int, where: str) -> Body:
@@ -187,7 +218,7 @@ def make_body(spec: ObjectSpec, index: int, where: str) -> Body:
         sphere = trimesh.creation.icosphere(subdivisions=spec.subdivisions, radius=half[0])
         verts, faces = np.asarray(sphere.vertices, float), np.asarray(sphere.faces, np.int64)
     else:
-        verts, faces = rounded_box(half, spec.subdivisions + 1)
+        verts, faces = rounded_box(half, spec.subdivisions + 1, spec.slots)
     if not len(faces):
         raise UserError(f"{at}: the object has no triangles")
     start = np.asarray(spec.start, float)
