@@ -152,10 +152,11 @@ def test_toaster_dodges_the_ball_in_time_only(root, tmp_path):
     assert methods["tz_union"]["passes"] < 3 and methods["tz_fragment"]["passes"] < 6
 
 
-def test_many_objects_no_missed_collision(tmp_path):
+@pytest.mark.parametrize("views", ["pair", "scene"])
+def test_many_objects_no_missed_collision(tmp_path, views):
     path = tmp_path / "many.toml"
-    path.write_text('kind = "collision"\nresolution = 12\n[random]\ncount = 24\nseed = 3\nextent = 3.0\n'
-                    'radius = 0.5\ntravel = 1.5\nsubdivisions = 0\n')
+    path.write_text(f'kind = "collision"\nresolution = {12 if views == "pair" else 48}\nviews = "{views}"\n'
+                    '[random]\ncount = 24\nseed = 3\nextent = 3.0\nradius = 0.5\ntravel = 1.5\nsubdivisions = 0\n')
     w = load_workload(path, load_arch())
     results = w.run().results
     assert assert_no_missed_collision(w, results) >= 3
@@ -196,6 +197,50 @@ def test_random_pairs_never_miss_a_collision(specs, resolution):
     w.resolution = resolution
     w.bodies = [C.make_body(spec, i, "random") for i, spec in enumerate(specs)]
     assert_no_missed_collision(w, w.run().results)
+
+
+@settings(max_examples=25, deadline=None)
+@given(specs=scenes(), resolution=st.integers(2, 24))
+def test_scene_views_of_a_pair_decide_as_its_pair_views(specs, resolution):
+    """With two objects a scene view is the pair's view (the same box, the same triangles): its tests
+    from the appended fragments (per-pixel object lists, numpy) keep exactly the pairs the pair views'
+    blended union targets and second fragment pass keep, for every method."""
+    found = {}
+    for views in ("pair", "scene"):
+        w = C.Collision("random.toml", load_arch())
+        w.resolution, w.views = resolution, views
+        w.bodies = [C.make_body(spec, i, "random") for i, spec in enumerate(specs)]
+        found[views] = pcs(w.run().results)
+    assert found["pair"] == found["scene"]
+
+
+@st.composite
+def crowds(draw):
+    """Five to nine small objects in a 3-unit cube, each moving up to 1.5 units and turning."""
+    specs = []
+    for i in range(draw(st.integers(5, 9))):
+        start = np.array(draw(st.lists(st.floats(0.0, 3.0), min_size=3, max_size=3)))
+        step = np.array(draw(st.lists(st.floats(-1.5, 1.5), min_size=3, max_size=3)))
+        specs.append(C.ObjectSpec(shape=draw(st.sampled_from(["icosphere", "rounded_box"])), name=f"o{i}",
+                                  size=draw(st.lists(st.floats(0.2, 0.6), min_size=3, max_size=3)),
+                                  subdivisions=0, start=list(start), end=list(start + step),
+                                  turn=draw(st.lists(st.floats(-60, 60), min_size=3, max_size=3))))
+    return specs
+
+
+@settings(max_examples=15, deadline=None)
+@given(specs=crowds(), resolution=st.integers(4, 48))
+def test_scene_views_never_miss_a_collision(specs, resolution):
+    """Many objects, one view per axis over all of them: every pair fcl finds in contact at one of 201
+    times is in every method's PCS, and the PCS inclusion order holds."""
+    w = C.Collision("crowd.toml", load_arch())
+    w.resolution, w.views = resolution, "scene"
+    w.bodies = [C.make_body(spec, i, "crowd") for i, spec in enumerate(specs)]
+    results = w.run().results
+    assert_no_missed_collision(w, results)
+    found = pcs(results)
+    assert found["tz_fragment"] <= found["tz_union"] <= found["depth_only"] <= found["cullide"]
+    assert results["methods"]["tz_union"]["passes"] <= 3
 
 
 def test_exact_contact_between_dense_times_is_in_every_pcs():
