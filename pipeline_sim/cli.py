@@ -357,7 +357,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "written beside it")
     report.add_argument("--force", action="store_true",
                         help="replace those outputs even where an existing one was not written by pipeline-sim")
-    report.add_argument("--metric", default="flip", help="error metric: rmse, psnr, ssim or flip (default flip)")
+    report.add_argument("--metric", default=None,
+                        help="error metric: rmse, psnr, ssim, flip or a workload result column result.NAME "
+                             "(default: the first of the sweep file's `results`, else flip)")
     report.add_argument("--cost", default="frame_cycles",
                         help="cost column: frame_cycles (default), ops_total or wall_time_s")
     report.set_defaults(func=cmd_report)

@@ -202,8 +202,10 @@ MOVED = {
 
 
 def literal(value: Any) -> str:
-    """``value`` written as a TOML literal (the right-hand side of ``--set``), by tomli_w."""
-    if not isinstance(value, (bool, int, float, str)):
+    """``value`` written as a TOML literal (the right-hand side of ``--set``; a list of scalars, a
+    workload file key's value), by tomli_w."""
+    scalars = (bool, int, float, str)
+    if not isinstance(value, scalars) and not (isinstance(value, list) and all(isinstance(v, scalars) for v in value)):
         raise TypeError(f"not a TOML scalar: {value!r}")
     return tomli_w.dumps({"v": value}).split("=", 1)[1].strip()
 

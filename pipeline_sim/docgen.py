@@ -114,7 +114,21 @@ def sweep_paths() -> str:
     rows = ["| kind | paths |", "|---|---|", "| image (the scene's `[image]`) | `image.width`, `image.height`, "
             "`image.spp`, `image.seed` |"]
     rows += [f"| {kind} | {', '.join(f'`{p}`' for p in ps)} |" for kind, ps in groups]
+    rows.append("| the workload kind's own file ([workloads.md](workloads.md#registered-kinds)) | `workload.KEY`, "
+                "e.g. " + ", ".join(f"`workload.{k}` ({kind})" for kind, k in _example_workload_keys()) + " |")
     return "\n".join(rows)
+
+
+def _example_workload_keys() -> list[tuple[str, str]]:
+    """(kind, key): the first key of a few registered kinds' files, for the table of sweep paths."""
+    from pipeline_sim.workload import kind_of, kinds
+
+    keys = []
+    for name in kinds():
+        schema = kind_of(name, "docgen").file_schema
+        if schema is not None:
+            keys.append((name, next(f.name for f in dataclasses.fields(schema))))
+    return keys[:4]
 
 
 def schema_table(cls: type, prefix: str = "", skip: tuple[str, ...] = ()) -> str:

@@ -9,6 +9,8 @@ A sweep file is TOML. Paths in it are relative to the sweep file itself:
     arch = "my_arch.toml"                     # optional, applied over the default architecture
     set = ["zcull.time_slices=4"]             # optional fixed overrides for every point (as `run --set`)
     metrics = ["rmse", "psnr", "ssim", "flip"]  # optional subset of the metrics; default all
+    # results = ["pcs_size"]                  # optional: results.json figures every point must have
+    # maximize = []                           # optional: those of `results` where higher is better
 
     [reference]                               # optional; the image each point is measured against
     kind = "pipeline"                         # "pipeline" (default) or "accumulation"
@@ -21,6 +23,7 @@ A sweep file is TOML. Paths in it are relative to the sweep file itself:
     "tile_traverser.tile_size" = [8, 16]      # any hardware setting by its dotted path,
     "pass.shading_mode" = ["cache", "per_sample"]  # the pass state (pass.KEY, pass.clip.KEY)
     "simulation.tiles_per_batch" = [256, 512] # and the simulation options (simulation.KEY)
+    # "workload.resolution" = [16, 32, 64]    # a key of a workload kind's own file (workload.KEY)
 
     [[zip]]                                   # zero or more groups: equal-length lists varied together
     "shading.cache_entries" = [256, 1024]
@@ -111,6 +114,11 @@ SUMMARY_FIELDS = (
 )
 #: Summary fields that measure the host rather than the simulation (differ between identical runs).
 HOST_TIMING_FIELDS = ("wall_time_s",)
+#: Grid keys under ``workload.`` replace keys of the workload kind's own file.
+WORKLOAD_PREFIX = "workload."
+#: Summary fields holding a workload's results (every number of its results.json, flattened; None where
+#: it has no finite value).
+RESULT_PREFIX = "result."
 
 _ARITHMETIC = ("add", "mul", "madd", "rcp", "compare")
 _ID_LENGTH = 12
@@ -139,6 +147,8 @@ class SweepSpec:
     reference: Any  # pipeline_sim.accuracy.ReferenceSpec
     axes: list[tuple[tuple[str, ...], list[tuple[Any, ...]]]]
     points: list[dict[str, Any]] = field(default_factory=list)
+    results: tuple[str, ...] = ()  # the workload results every point must have (report metrics)
+    maximize: tuple[str, ...] = ()  # those of `results` where higher is better
 
     @property
     def param_names(self) -> list[str]:
@@ -156,6 +166,8 @@ class SweepSpec:
             "set": list(self.set),
             "metrics": list(self.metrics),
             "reference": dataclasses.asdict(self.reference),
+            "results": list(self.results),
+            "maximize": list(self.maximize),
         }
 
 
@@ -169,11 +181,27 @@ def _describe(params: dict[str, Any]) -> str:
     return ", ".join(f"{k}={toml_literal(v)}" for k, v in params.items()) or "(no settings)"
 
 
-def _split_params(params: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
-    """(image settings, ``--set`` overrides of the hardware, pass state and simulation options) of a point."""
+def _split_params(params: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any], list[str]]:
+    """(image settings, keys of the workload's file, ``--set`` overrides of the hardware, pass state and
+    simulation options) of a point."""
     image = {k.split(".", 1)[1]: v for k, v in params.items() if k.startswith("image.")}
-    overrides = [f"{k}={toml_literal(v)}" for k, v in params.items() if not k.startswith("image.")]
-    return image, overrides
+    file_keys = {k.removeprefix(WORKLOAD_PREFIX): v for k, v in params.items() if k.startswith(WORKLOAD_PREFIX)}
+    overrides = [f"{k}={toml_literal(v)}" for k, v in params.items()
+                 if not k.startswith(("image.", WORKLOAD_PREFIX))]
+    return image, file_keys, overrides
+
+
+def result_figures(results: dict[str, Any], prefix: str = "") -> Iterator[tuple[str, float | None]]:
+    """Every number of a workload's ``results.json`` (booleans aside), nested keys joined by dots; a
+    figure with no finite value (null in the file, or NaN) is None."""
+    for key, value in results.items():
+        if isinstance(value, dict):
+            yield from result_figures(value, f"{prefix}{key}.")
+        elif value is None:
+            yield f"{prefix}{key}", None
+        elif isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_)):
+            value = value.item() if isinstance(value, np.generic) else value
+            yield f"{prefix}{key}", value if np.isfinite(value) else None
 
 
 def _flatten(table: dict[str, Any], prefix: str = "") -> Iterator[tuple[str, Any]]:
@@ -197,13 +225,15 @@ def _check_setting_path(where: str, key: str) -> None:
 
     if key in MOVED:
         raise moved_error(where, key, varied=True)
+    if key.startswith(WORKLOAD_PREFIX) and all(key.removeprefix(WORKLOAD_PREFIX).split(".")):
+        return  # a key of the workload's file: checked with the file's schema, value by value
     paths = {*setting_effects(), *(f"image.{k}" for k in IMAGE_KEYS)}
     if key in paths:
         return
     parts = key.split(".")
     if len(parts) < 2 or not all(parts):
         raise UserError(f"{where}: '{key}' is not a setting path (expected section.key, "
-                        "e.g. tile_traverser.tile_size, pass.depth_test or image.spp)")
+                        "e.g. tile_traverser.tile_size, pass.depth_test, image.spp or workload.KEY)")
     table = ".".join(parts[:-1])
     tables = sorted({p.rsplit(".", 1)[0] for p in paths})
     if table not in tables:
@@ -222,16 +252,20 @@ def _read_sweep_toml(path: Path, where: str) -> dict[str, Any]:
         raise UserError(f"{where}: invalid TOML: {msg}") from None
 
 
-def _value_list(where: str, value: Any, unique: bool = True) -> list[Any]:
-    """A non-empty list of TOML scalars (distinct unless ``unique`` is false)."""
+def _value_list(where: str, value: Any, unique: bool = True, lists: bool = False) -> list[Any]:
+    """A non-empty list of TOML scalars, or with ``lists`` also lists of scalars (a workload file key's
+    values), distinct unless ``unique`` is false."""
     if not isinstance(value, list):
         raise UserError(f"{where}: expected a list of values, e.g. [1, 4, 16], got {value!r}")
     if not value:
         raise UserError(f"{where}: the list of values is empty")
     seen: set[str] = set()
+    scalars = (bool, int, float, str)
     for v in value:
-        if isinstance(v, (list, dict)) or not isinstance(v, (bool, int, float, str)):
-            raise UserError(f"{where}: values must be numbers, booleans or strings, got {v!r}")
+        if not isinstance(v, scalars) and not (lists and isinstance(v, list) and all(isinstance(x, scalars)
+                                                                                      for x in v)):
+            kinds = "numbers, booleans, strings or lists of them" if lists else "numbers, booleans or strings"
+            raise UserError(f"{where}: values must be {kinds}, got {v!r}")
         canon = json.dumps(v)
         if unique and canon in seen:
             raise UserError(f"{where}: value {toml_literal(v)} is listed twice")
@@ -258,10 +292,22 @@ class SweepTable:
                            default_factory=list)
     metrics: Annotated[list[Literal[METRICS]], Field(min_length=1)] = schema.key(
         "the image metrics measured (a subset of " + ", ".join(METRICS) + ")", default_factory=lambda: list(METRICS))
+    results: list[Text] = schema.key(
+        "figures of the workload's results.json (nested keys joined by dots) every point must have; the first "
+        "is the report's default error metric (every finite figure is in points.csv as result.NAME anyway)",
+        default_factory=list)
+    maximize: list[Text] = schema.key("those of `results` where higher is better (lower is, by default)",
+                                      default_factory=list)
 
     def check(self, where: str) -> None:
-        if len(set(self.metrics)) != len(self.metrics):
-            raise UserError(f"{where}.metrics: a metric is listed twice")
+        for name in ("metrics", "results", "maximize"):
+            values = getattr(self, name)
+            if len(set(values)) != len(values):
+                raise UserError(f"{where}.{name}: a name is listed twice")
+        for m in self.maximize:
+            if m not in self.results:
+                raise UserError(f"{where}.maximize: '{m}' is not one of the sweep's results "
+                                f"({', '.join(self.results) or 'none listed'})")
 
 
 @dataclass
@@ -367,14 +413,17 @@ def load_sweep(path: str | Path) -> SweepSpec:
                 check_image_value(name, v, f"{loc} = {toml_literal(v)}")
                 continue
             try:
-                workload.with_settings([f"{key}={toml_literal(v)}"])
+                if key.startswith(WORKLOAD_PREFIX):
+                    load_workload(scene_path, base, file_keys={name: v})
+                else:
+                    workload.with_settings([f"{key}={toml_literal(v)}"])
             except UserError as exc:
                 alone_errors[(key, json.dumps(v))] = (table, str(exc))
 
     for key, value in _flatten(spec_file.grid):
         loc = f"{where}: [grid] {key}"
         _check_setting_path(loc, key)
-        values = _value_list(loc, value)
+        values = _value_list(loc, value, lists=key.startswith(WORKLOAD_PREFIX))
         check_values("[grid]", key, values)
         axes.append(((key,), [(v,) for v in values]))
 
@@ -388,7 +437,8 @@ def load_sweep(path: str | Path) -> SweepSpec:
         for key, value in items:
             loc = f"{gloc} {key}"
             _check_setting_path(loc, key)
-            value = _value_list(loc, value, unique=False)  # a zip column may repeat a value
+            value = _value_list(loc, value, unique=False,  # a zip column may repeat a value
+                                lists=key.startswith(WORKLOAD_PREFIX))
             check_values(table, key, value)
             keys.append(key)
             columns.append(value)
@@ -410,19 +460,20 @@ def load_sweep(path: str | Path) -> SweepSpec:
         params: dict[str, Any] = {}
         for (keys, _), values in zip(axes, combo):
             params.update(zip(keys, values))
-        image, overrides = _split_params(params)
+        image, file_keys, overrides = _split_params(params)
         at = f"{where}: point {_describe(params)}"
-        image_key = json.dumps(image, sort_keys=True)
+        image_key = json.dumps([image, file_keys], sort_keys=True)
         try:
             if image_key not in images:
-                images[image_key] = load_workload(scene_path, base, image) if image else loaded
+                images[image_key] = load_workload(scene_path, base, image, file_keys) if image or file_keys \
+                    else loaded
             point = images[image_key].with_settings(list(fixed) + overrides)
         except UserError as exc:
             for k, v in params.items():  # blame one key when it alone gives this error
                 table, msg = alone_errors.get((k, json.dumps(v)), ("", ""))
                 if msg == str(exc):
                     raise UserError(f"{where}: {table} {k} = {toml_literal(v)}: "
-                                    f"{msg.removeprefix('--set: ')}") from None
+                                    f"{msg.removeprefix('--set: ').removeprefix(f'{scene_path}: ')}") from None
             raise UserError(f"{at}: {exc}") from None
         try:
             point.check(reference_spp=reference_spp if point.reference_scene() is not None else None)
@@ -433,7 +484,8 @@ def load_sweep(path: str | Path) -> SweepSpec:
     return SweepSpec(
         path=p.resolve(), scene=scene_path, scene_digest=loaded.digest, arch=arch_path,
         arch_digest=None if arch_path is None else _file_digest(arch_path), set=list(fixed),
-        metrics=metrics, reference=reference, axes=axes, points=points,
+        metrics=metrics, reference=reference, axes=axes, points=points, results=tuple(sw.results),
+        maximize=tuple(sw.maximize),
     )
 
 
@@ -517,9 +569,10 @@ def _run_point(spec: dict[str, Any], params: dict[str, Any], out: Path,
     from pipeline_sim.workload import load_workload
 
     compile_s = warm_up()
-    image_params, overrides = _split_params(params)
+    image_params, file_keys, overrides = _split_params(params)
     overrides = list(spec["set"]) + overrides
-    workload = load_workload(spec["scene"], load_arch(spec["arch"]), image_params).with_settings(overrides)
+    workload = load_workload(spec["scene"], load_arch(spec["arch"]), image_params, file_keys) \
+        .with_settings(overrides)
     arch = workload.arch
     run = workload.run()
     result = run.total()
@@ -537,7 +590,13 @@ def _run_point(spec: dict[str, Any], params: dict[str, Any], out: Path,
     emap = error_map(result.image, reference) if scene is not None else None
     t2 = time.perf_counter()
 
-    summary = {"point_id": pid, "status": "ok", **params, **_summarize(result, metrics)}
+    figures = dict(result_figures(run.results))
+    missing = [r for r in spec.get("results", []) if r not in figures]
+    if missing:
+        raise UserError(f"the workload's results.json has no figure {', '.join(missing)} "
+                        f"(it has: {', '.join(figures) or 'none'})")
+    summary = {"point_id": pid, "status": "ok", **params, **_summarize(result, metrics),
+               **{f"{RESULT_PREFIX}{k}": v for k, v in figures.items()}}
     info = {
         "point_id": pid,
         "params": params,
@@ -605,9 +664,20 @@ def _read_record(path: Path) -> dict[str, Any] | None:
     return rec if isinstance(rec, dict) and isinstance(rec.get("summary"), dict) else None
 
 
+def _result_columns(spec: SweepSpec, records: dict[str, dict[str, Any]]) -> list[str]:
+    """The workload-result columns of the points: the sweep's listed results first, then the others as found."""
+    columns = [f"{RESULT_PREFIX}{r}" for r in spec.results]
+    for p in spec.points:
+        rec = records.get(point_id(p))
+        if rec is not None:
+            columns += [k for k in rec["summary"] if k.startswith(RESULT_PREFIX) and k not in columns]
+    return columns
+
+
 def _points_frame(spec: SweepSpec, records: dict[str, dict[str, Any]]) -> pd.DataFrame:
     params = spec.param_names
-    columns = ["point_id", "status", *params, *SUMMARY_FIELDS, *spec.metrics, "error"]
+    columns = ["point_id", "status", *params, *SUMMARY_FIELDS, *spec.metrics, *_result_columns(spec, records),
+               "error"]
     rows = []
     for p in spec.points:
         rec = records.get(point_id(p))
@@ -620,7 +690,7 @@ def _points_frame(spec: SweepSpec, records: dict[str, dict[str, Any]]) -> pd.Dat
 
 
 def _results_frame(spec: SweepSpec, records: dict[str, dict[str, Any]]) -> pd.DataFrame:
-    names = [n for n in SUMMARY_FIELDS if n != "bottleneck_unit"] + list(spec.metrics)
+    names = [n for n in SUMMARY_FIELDS if n != "bottleneck_unit"] + list(spec.metrics) + _result_columns(spec, records)
     rows: list[tuple[str, str, str, str, Any]] = []
     for p in spec.points:
         pid = point_id(p)

@@ -341,11 +341,14 @@ def kind_of(name: str, where: str) -> type[Workload]:
     return _KINDS[name]
 
 
-def read_workload(path: str | Path) -> tuple[type[Workload], dict[str, Any]]:
+def read_workload(path: str | Path, file_keys: dict[str, Any] | None = None) -> tuple[type[Workload], dict[str, Any]]:
     """The kind a workload file names and its parsed TOML, or, for a kind with a
     :attr:`Workload.file_schema`, the file (less its ``kind``) validated against it (one line naming
     the file and key, with the nearest known name). A file that cannot be read or is not TOML is
-    reported as the scene reader reports it (the kind of a file without ``kind``)."""
+    reported as the scene reader reports it (the kind of a file without ``kind``).
+
+    ``file_keys`` (a sweep's ``workload.KEY`` settings: dotted key -> value) replace keys of the
+    file before it is validated; only a kind with a file schema has such keys."""
     from pipeline_sim.scene import load_scene
 
     p = Path(path)
@@ -360,15 +363,34 @@ def read_workload(path: str | Path) -> tuple[type[Workload], dict[str, Any]]:
     if not isinstance(name, str):
         raise UserError(f"{where}: kind: expected a string naming the workload kind, got {type(name).__name__}")
     cls = kind_of(name, where)
+    if file_keys and cls.file_schema is None:
+        raise UserError(f"{where}: workload.{next(iter(file_keys))}: a workload.KEY setting replaces a key of a "
+                        f"kind's file, and the kind {name} has no file keys (vary its image.*, pass.*, "
+                        "simulation.* or hardware settings)")
+    for key, value in (file_keys or {}).items():
+        _replace_key(data, key, value, where)
     if cls.file_schema is not None:
         return cls, schema.build(cls.file_schema, {k: v for k, v in data.items() if k != "kind"}, where)
     return cls, data
 
 
-def load_workload(path: str | Path, arch: ArchConfig, image: dict[str, int] | None = None) -> Workload:
+def _replace_key(data: dict[str, Any], key: str, value: Any, where: str) -> None:
+    """Set the dotted ``key`` of a parsed TOML file to ``value`` (tables on the way made if missing)."""
+    *tables, last = key.split(".")
+    table = data
+    for i, name in enumerate(tables):
+        table = table.setdefault(name, {})
+        if not isinstance(table, dict):
+            raise UserError(f"{where}: workload.{key}: '{'.'.join(tables[:i + 1])}' is not a table of the file")
+    table[last] = value
+
+
+def load_workload(path: str | Path, arch: ArchConfig, image: dict[str, int] | None = None,
+                  file_keys: dict[str, Any] | None = None) -> Workload:
     """Load the workload file ``path`` on ``arch`` (``image``: image settings overridden, checked by
-    the caller), its file read and validated by :func:`read_workload`."""
-    cls, data = read_workload(path)
+    the caller; ``file_keys``: keys of the file replaced, see :func:`read_workload`), its file read and
+    validated by :func:`read_workload`."""
+    cls, data = read_workload(path, file_keys)
     return cls.load(Path(path), data, arch, dict(image or {}))
 
 

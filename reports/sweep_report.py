@@ -59,6 +59,8 @@ BASE_COLUMNS = ("point_id", "status", "error", "frame_cycles", "wall_time_s", "o
                 "depth_bytes_per_pixel", "bottleneck_unit", "rmse", "psnr", "ssim", "flip")
 METRIC_COLUMNS = ("rmse", "psnr", "ssim", "flip")
 COST_COLUMNS = ("frame_cycles", "ops_total", "wall_time_s")
+#: Prefix of points.csv's columns holding a workload's results (``pipeline_sim.sweep``).
+RESULT_PREFIX = "result."
 #: Metrics where higher is better (the Pareto frontier needs "lower is better").
 HIGHER_IS_BETTER = ("psnr", "ssim")
 MAX_IMAGES = 8
@@ -92,6 +94,19 @@ class Sweep:
 
     def point_dir(self, pid: str) -> Path:
         return self.dir / "points" / str(pid)
+
+    def higher(self, metric: str) -> bool:
+        """Whether higher values of ``metric`` are better: PSNR, SSIM, and the workload results the
+        sweep file lists under ``maximize``."""
+        return metric in HIGHER_IS_BETTER or metric in {
+            f"{RESULT_PREFIX}{m}" for m in self.spec.get("maximize") or [] if isinstance(m, str)}
+
+    @property
+    def default_metric(self) -> str:
+        """The report's error metric when none is chosen: the first workload result the sweep file
+        lists under ``results``, else FLIP."""
+        listed = [m for m in self.spec.get("results") or [] if isinstance(m, str)]
+        return f"{RESULT_PREFIX}{listed[0]}" if listed else "flip"
 
 
 def _not_a_sweep(d: Path, why: str) -> UserError:
@@ -135,7 +150,8 @@ def _normalize_spec(raw: dict[str, Any]) -> dict[str, Any]:
             points.append({"id": None if pid is None else str(pid), "params": params})
     out = dict(raw)
     out.update({"scene": pick("scene"), "arch": arch, "fixed_set": fixed, "metrics": pick("metrics") or [],
-                "reference": pick("reference") or {}, "points": points})
+                "reference": pick("reference") or {}, "points": points,
+                "results": pick("results") or [], "maximize": pick("maximize") or []})
     return out
 
 
@@ -185,12 +201,13 @@ def load_sweep(sweep_dir: str | Path) -> Sweep:
             if isinstance(pp, dict):
                 spec_params[str(p.get("id"))] = pp
                 params += [k for k in pp if k not in params]
-    params += [c for c in points.columns if "." in c and c not in params and c not in BASE_COLUMNS]
+    params += [c for c in points.columns if "." in c and c not in params and c not in BASE_COLUMNS
+               and not c.startswith(RESULT_PREFIX)]
     for k in params:  # a parameter only in sweep.json: fill its column from there
         if k not in points.columns:
             points[k] = [spec_params.get(pid, {}).get(k) for pid in points["point_id"]]
     swept = [k for k in params if points[k].astype(str).nunique(dropna=False) > 1]
-    for c in BASE_COLUMNS[3:]:
+    for c in [*BASE_COLUMNS[3:], *(c for c in points.columns if c.startswith(RESULT_PREFIX))]:
         if c in points.columns and c != "bottleneck_unit":
             points[c] = pd.to_numeric(points[c], errors="coerce")
     points["status"] = points["status"].fillna("error").astype(str)
@@ -244,15 +261,16 @@ def _order_by_cost(df: pd.DataFrame, cost: str) -> pd.DataFrame:
     return df.sort_values([cost, "point_id"], kind="stable", na_position="last") if cost in df else df
 
 
-def _error_values(df: pd.DataFrame, metric: str) -> np.ndarray:
+def _error_values(df: pd.DataFrame, metric: str, higher: bool) -> np.ndarray:
+    """``metric``'s values as "lower is better" (negated when ``higher`` is better)."""
     v = pd.to_numeric(df[metric], errors="coerce").to_numpy(float) if metric in df else np.full(len(df), np.nan)
-    return -v if metric in HIGHER_IS_BETTER else v
+    return -v if higher else v
 
 
-def _pareto(df: pd.DataFrame, metric: str, cost: str) -> pd.Series:
+def _pareto(df: pd.DataFrame, metric: str, cost: str, higher: bool) -> pd.Series:
     if df.empty or cost not in df or metric not in df:
         return pd.Series(False, index=df.index)
-    return pd.Series(F.pareto_front(pd.to_numeric(df[cost], errors="coerce"), _error_values(df, metric)),
+    return pd.Series(F.pareto_front(pd.to_numeric(df[cost], errors="coerce"), _error_values(df, metric, higher)),
                      index=df.index)
 
 
@@ -266,10 +284,10 @@ def select_images(sweep: Sweep, metric: str, cost: str, max_images: int = MAX_IM
     if len(ok) <= max_images:
         chosen = ok
     elif "image.spp" in sweep.swept and ok["image.spp"].nunique() > 1:
-        err = pd.Series(_error_values(ok, metric), index=ok.index).fillna(np.inf)
+        err = pd.Series(_error_values(ok, metric, sweep.higher(metric)), index=ok.index).fillna(np.inf)
         chosen = ok.loc[[err.loc[g.index].idxmin() for _, g in ok.groupby("image.spp", sort=True)]]
     else:
-        front = _pareto(ok, metric, cost)
+        front = _pareto(ok, metric, cost, sweep.higher(metric))
         chosen = ok[front] if front.sum() >= 2 else ok
     chosen = _order_by_cost(chosen, cost)
     if len(chosen) > max_images:
@@ -549,13 +567,14 @@ def _summary(doc: _Doc, sw: Sweep, metric: str, cost: str, front: pd.Series) -> 
     if isinstance(ref, dict) and ref:
         drop = {"pipeline": ("passes",), "accumulation": ("spp",)}.get(str(ref.get("kind")), ())
         items.append("reference: " + ", ".join(f"{k}={v}" for k, v in ref.items() if k not in drop))
-    items.append(f"error metric: {metric} ({'higher' if metric in HIGHER_IS_BETTER else 'lower'} is better); "
+    higher = sw.higher(metric)
+    items.append(f"error metric: {metric} ({'higher' if higher else 'lower'} is better); "
                  f"cost: {cost}")
     doc.items(items)
-    good = ok[np.isfinite(_error_values(ok, metric)) & np.isfinite(pd.to_numeric(ok.get(cost), errors="coerce"))] \
-        if cost in ok and metric in ok else ok[:0]
+    finite_cost = np.isfinite(pd.to_numeric(ok.get(cost), errors="coerce"))
+    good = ok[np.isfinite(_error_values(ok, metric, higher)) & finite_cost] if cost in ok and metric in ok else ok[:0]
     if len(good) >= 2:
-        err = pd.Series(_error_values(good, metric), index=good.index)
+        err = pd.Series(_error_values(good, metric, higher), index=good.index)
         c = pd.to_numeric(good[cost], errors="coerce")
         best, cheap = err.idxmin(), c.idxmin()
         ratio = c[best] / c[cheap] if c[cheap] > 0 else float("nan")
@@ -573,7 +592,7 @@ def _sorted_values(s: pd.Series) -> list:
         return sorted(vals, key=str)
 
 
-def build_report(sweep_dir: str | Path, out_html: str | Path, *, metric: str = "flip",
+def build_report(sweep_dir: str | Path, out_html: str | Path, *, metric: str | None = None,
                  cost: str = "frame_cycles", force: bool = False) -> Path:
     """Write the sweep report (HTML, its Markdown twin and the twin's PNGs); return the HTML path.
 
@@ -583,6 +602,7 @@ def build_report(sweep_dir: str | Path, out_html: str | Path, *, metric: str = "
     :mod:`pipeline_sim.output_folder`).
     """
     sw = load_sweep(sweep_dir)
+    metric = metric or sw.default_metric
     _check_choice(sw, "metric", metric, METRIC_COLUMNS)
     _check_choice(sw, "cost", cost, COST_COLUMNS)
     out_html = Path(out_html)
@@ -603,7 +623,7 @@ def build_report(sweep_dir: str | Path, out_html: str | Path, *, metric: str = "
 def _document(sw: Sweep, metric: str, cost: str) -> _Doc:
     """The report of ``sw``, figures and tables, ready to render as HTML or Markdown."""
     ok = _order_by_cost(sw.ok, cost)
-    front = _pareto(ok, metric, cost)
+    front = _pareto(ok, metric, cost, sw.higher(metric))
     color_by = "image.spp" if "image.spp" in sw.swept else (
         sw.swept[0] if sw.swept and sw.points[sw.swept[0]].nunique() <= 10 else None)
     label_params = [p for p in sw.swept if p != color_by] or sw.swept
@@ -616,7 +636,7 @@ def _document(sw: Sweep, metric: str, cost: str) -> _Doc:
     doc.h2("What does accuracy cost?", "accuracy-cost")
     costs = [cost] + [c for c in COST_COLUMNS if c != cost and c in ok.columns]
     acc = ok.copy()
-    if metric in HIGHER_IS_BETTER:
+    if sw.higher(metric):
         doc.p(f"{metric} is higher-is-better: the frontier here is higher {metric} at lower cost.")
     acc["label"] = [F.point_label(r, label_params) if label_params else pid
                     for r, pid in zip(acc[label_params].to_dict("records") if label_params else [{}] * len(acc),
@@ -626,7 +646,7 @@ def _document(sw: Sweep, metric: str, cost: str) -> _Doc:
             "cheaper; the dashed staircase is the best error reachable at each cost). "
             + (f"Colored by {color_by}. " if color_by else "")
             + f"Panels: {', '.join(costs)}; axes are logarithmic where values span 10x or more.",
-            _accuracy_figure(acc, metric, costs, color_by))
+            _accuracy_figure(acc, metric, costs, color_by, sw.higher(metric)))
     if front.any():
         cols = ["label", "point_id", metric, *costs]
         doc.table(_Table(ok[front][[c for c in cols if c in ok.columns]].rename(columns={"label": "point"})))
@@ -810,9 +830,8 @@ def _document(sw: Sweep, metric: str, cost: str) -> _Doc:
     return doc
 
 
-def _accuracy_figure(acc: pd.DataFrame, metric: str, costs: list[str], color_by: str | None):
-    return F.accuracy_cost(acc, metric=metric, costs=costs, color_by=color_by,
-                           higher_is_better=metric in HIGHER_IS_BETTER)
+def _accuracy_figure(acc: pd.DataFrame, metric: str, costs: list[str], color_by: str | None, higher: bool):
+    return F.accuracy_cost(acc, metric=metric, costs=costs, color_by=color_by, higher_is_better=higher)
 
 
 # ---------------------------------------------------------------------------

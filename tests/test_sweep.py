@@ -338,3 +338,89 @@ def test_toml_literal_reads_back_as_the_same_value(value):
     back = tomllib.loads(f"v = {toml_literal(value)}")["v"]
     assert back == value or (value != value and back != back)
     assert type(back) is type(value)
+
+
+# ---------------------------------------------------------------------------
+# A workload kind's own keys and results
+
+OCCLUSION = """kind = "occlusion"
+width = 16
+height = 16
+spp = 1
+proxies = 2
+tile_sizes = [8]
+time_slices = [1]
+lens_boxes = [1]
+"""
+
+def _doc_example(section: str) -> str:
+    """The first TOML block under the heading ``section`` of docs/sweep-format.md."""
+    text = (ROOT / "docs" / "sweep-format.md").read_text()
+    after = text[text.index(f"## {section}\n"):]
+    return after[after.index("```toml\n") + 8:after.index("\n```", after.index("```toml\n"))]
+
+
+WORKLOAD_SWEEP = _doc_example("A workload kind's results")
+
+
+def _workload_folder(path: Path, sweep: str) -> Path:
+    path.mkdir(parents=True, exist_ok=True)
+    (path / "occlusion.toml").write_text(OCCLUSION)
+    (path / "sweep.toml").write_text(sweep)
+    return path / "sweep.toml"
+
+
+def test_workload_keys_vary_the_file_and_results_become_columns(tmp_path):
+    from reports.sweep_report import build_report
+
+    out = tmp_path / "out"
+    frame = run_sweep(load_sweep(_workload_folder(tmp_path, WORKLOAD_SWEEP)), out, executor="serial",
+                      progress=False)
+    assert (frame.status == "ok").all() and len(frame) == 4
+    points = pd.read_csv(out / "points.csv")
+    listed = [c for c in points.columns if c.startswith("result.")]
+    assert listed[:2] == ["result.proxies", "result.truly_occluded"]  # the listed results first
+    for _, row in points.iterrows():
+        folder = out / "points" / row.point_id
+        resolved = json.loads((folder / "run.json").read_text())["workload"]
+        results = json.loads((folder / "results.json").read_text())
+        # the point's file keys reached the workload, and its results reached the table
+        assert json.loads(str(row["workload.time_slices"])) == resolved["settings"]["time_slices"]
+        assert row["workload.proxies"] == resolved["settings"]["proxies"]
+        assert row["result.proxies"] == results["proxies"] == row["workload.proxies"]
+        assert row["result.truly_occluded"] == results["truly_occluded"]
+        assert row["result.configuration.time_slices"] == results["configuration"]["time_slices"]
+    html = build_report(out, out / "report.html")
+    text = html.with_suffix(".md").read_text()
+    assert "error metric: result.proxies (lower is better)" in text  # the first listed result, by default
+    build_report(out, out / "report.html", metric="result.truly_occluded", force=True)
+    assert "error metric: result.truly_occluded (higher is better)" in html.with_suffix(".md").read_text()
+
+
+@pytest.mark.parametrize("grid, message", [
+    ('"workload.proxie" = [2]', "unknown key 'proxie' (did you mean 'proxies'?)"),
+    ('"workload.proxies" = [0]', "[grid] workload.proxies = 0: proxies:"),
+    ('"workload.tile_sizes.x" = [1]', "workload.tile_sizes.x: 'tile_sizes' is not a table of the file"),
+    ('"workload.proxies" = [[1, [2]]]', "values must be numbers, booleans, strings or lists of them"),
+])
+def test_bad_workload_keys_are_one_line(tmp_path, grid, message):
+    sweep = _workload_folder(tmp_path, f"[sweep]\nscene = \"occlusion.toml\"\n[grid]\n{grid}\n")
+    with pytest.raises(UserError) as exc:
+        load_sweep(sweep)
+    assert message in str(exc.value) and "\n" not in str(exc.value)
+
+
+def test_workload_keys_of_a_scene_and_unlisted_maximize_are_refused(tmp_path):
+    sweep = _folder(tmp_path, '[sweep]\nscene = "scene.toml"\n[grid]\n"workload.spp" = [1]\n')
+    with pytest.raises(UserError, match="has no file keys"):
+        load_sweep(sweep)
+    sweep = _workload_folder(tmp_path / "w", '[sweep]\nscene = "occlusion.toml"\nmaximize = ["x"]\n')
+    with pytest.raises(UserError, match="maximize: 'x' is not one of the sweep's results"):
+        load_sweep(sweep)
+
+
+def test_a_listed_result_the_workload_lacks_fails_the_point(tmp_path):
+    sweep = _workload_folder(tmp_path, '[sweep]\nscene = "occlusion.toml"\nresults = ["pcs_size"]\n')
+    frame = run_sweep(load_sweep(sweep), tmp_path / "out", executor="serial", progress=False)
+    assert list(frame.status) == ["error"]
+    assert "results.json has no figure pcs_size (it has: proxies," in frame.error[0]
