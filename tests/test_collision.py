@@ -410,6 +410,20 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys, text, message):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("views", ["pair", "scene"])
+def test_objects_whose_swept_boxes_never_meet_give_empty_sets(tmp_path, views):
+    """No pair to test: the run still has one view (of every object), and every PCS is empty."""
+    path = tmp_path / "apart.toml"
+    path.write_text(f'kind = "collision"\nresolution = 8\nviews = "{views}"\n[[objects]]\nshape = "icosphere"\n'
+                    '[[objects]]\nshape = "icosphere"\nstart = [5.0, 0.0, 0.0]\n')
+    out = tmp_path / "run"
+    assert main(["run", str(path), "--out", str(out), "--quiet"]) == 0
+    results = json.loads((out / "results.json").read_text())
+    assert results["swept_box_pairs"] == 0
+    assert all(row["pcs_size"] == 0 and row["passes"] == 0 for row in results["methods"].values())
+    assert (out / "passes" / "scene.x").is_dir()
+
+
 def test_results_json_is_strict_and_lists_every_method(root, tmp_path):
     out = tmp_path / "run"
     assert main(["run", str(root / APP / "toaster.toml"), "--out", str(out), "--quiet"]) == 0
@@ -418,3 +432,26 @@ def test_results_json_is_strict_and_lists_every_method(root, tmp_path):
         row = results["methods"][m]
         assert row["pcs_size"] == len(row["pcs"]) and row["passes"] >= 1 and row["pixels_shaded"] > 0
         assert row["cycles"] > 0
+
+
+def test_cost_sweep_runs_a_tiny_version(root, tmp_path):
+    """workloads/sweeps/collision_cost.toml on 6 objects at two resolutions: every point runs, each
+    method's PCS size is a column, and the PCS inclusion order holds at each point."""
+    import pandas as pd
+
+    from pipeline_sim.sweep import load_sweep, run_sweep
+
+    shipped = (root / "workloads/sweeps/collision_cost.toml").read_text()
+    text = shipped.replace('"../apps/collision/many.toml"', '"many.toml"').replace("[16, 32, 64, 128, 256, 512]",
+                                                                                  "[8, 32]")
+    assert text.count("../apps") == 0 and "[8, 32]" in text
+    (tmp_path / "many.toml").write_text('kind = "collision"\nviews = "scene"\n[random]\ncount = 6\nseed = 2\n'
+                                        'extent = 1.0\nsubdivisions = 0\n')
+    (tmp_path / "sweep.toml").write_text(text)
+    frame = run_sweep(load_sweep(tmp_path / "sweep.toml"), tmp_path / "out", executor="serial", progress=False)
+    assert (frame.status == "ok").all() and len(frame) == 2
+    points = pd.read_csv(tmp_path / "out" / "points.csv").sort_values("workload.resolution")
+    size = {m: points[f"result.methods.{m}.pcs_size"].to_numpy() for m in C.METHODS}
+    assert np.all(size["tz_fragment"] <= size["tz_union"]) and np.all(size["tz_union"] <= size["depth_only"])
+    assert np.all(size["depth_only"] <= size["cullide"]) and np.all(points["result.swept_box_pairs"] >= size["cullide"])
+    assert points.frame_cycles.iloc[0] < points.frame_cycles.iloc[1]  # finer views shade more pixels
