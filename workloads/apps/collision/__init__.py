@@ -31,7 +31,13 @@ separate (a "max" blended target, the query):
   sharing one pass each.
 
 Each method stops at its own first separating view; its passes, shaded pixels and simulated cycles
-are the ones it needed (methods that share a pass each count it).
+are the ones it needed (methods that share a pass each count it). Each union view also gives an
+image of the pixels where the boxes overlap in time, in depth, and in both (Nilsson12 Fig. 6).
+
+With ``views = "scene"`` the many-object PCS is pruned view by view over all pairs at once: per axis
+one pass draws every object still in a pair of some PCS and appends each fragment with its object
+(a per-pixel object list); every pair met at a pixel gets the four tests from its objects' fragments
+there (:func:`pair_tests`), three passes in all.
 """
 
 from __future__ import annotations
@@ -451,7 +457,8 @@ def swept_boxes_meet(a: Body, b: Body) -> bool:
 
 
 class Collision(Workload):
-    """The kind ``collision``: the PCS of every pair of moving objects by tz-box union and by depth only."""
+    """The kind ``collision``: the PCS of every pair of moving objects by each of the four methods, in
+    views per pair or in views of the whole scene."""
 
     file_schema = Settings
     #: how the views are laid out (`Settings.views`); a workload built in code keeps the pair views
@@ -480,7 +487,8 @@ class Collision(Workload):
 
     def check(self, variants=None, *, reference_spp=None) -> str:
         n = sum(len(b.faces) for b in self.bodies)
-        return f"{len(self.bodies)} objects, {n} triangles, views of {self.resolution}x{self.resolution} pixels"
+        return (f"{len(self.bodies)} objects, {n} triangles, {self.views} views of {self.resolution}x{self.resolution} "
+                "pixels")
 
     def run(self, progress=None) -> WorkloadResult:
         """Every pair whose swept boxes meet through the views of each method, pass by pass."""
