@@ -314,8 +314,7 @@ def test_overlap_image_colours_agree_with_a_closed_form(tmp_path):
     by 6. Per pixel centre the times each box covers it are intervals in closed form, and its depths
     its part's: the image is red (time), blue (depth), purple (both) or black where they say, on
     every pixel whose decision is clear by more than the conservative rasterizer's slack (pixels
-    within 1.5 pixels of a y edge and times within 0.15 of a decision are left out). The run folder
-    has the image as images/A-B.z.png."""
+    within 1.5 pixels of a y edge and times within 0.15 of a decision are left out)."""
     va, fa = box_mesh([-1.0, -1.0, 0.0], [1.0, 1.0, 0.4])
     vu, fu = box_mesh([-5.0, 0.2, 0.2], [-4.0, 1.0, 0.6])
     vl, fl = box_mesh([-5.0, -1.0, 0.8], [-4.0, -0.2, 1.2])
@@ -326,11 +325,8 @@ def test_overlap_image_colours_agree_with_a_closed_form(tmp_path):
             'end = [6.0, 0.0, 0.0]\n')
     path = tmp_path / "fig6.toml"
     path.write_text(text)
-    out = tmp_path / "run"
-    assert main(["run", str(path), "--out", str(out), "--quiet"]) == 0
-    image = np.load(out / "images" / "A-B.z.npy")
-    assert (out / "images" / "A-B.z.png").exists()
     w = load_workload(path, load_arch())
+    image = w.run().images["A-B.z"]
     lo, hi = C.view_box(*w.bodies)
     n = 64
     checked = {}
@@ -432,6 +428,10 @@ def test_results_json_is_strict_and_lists_every_method(root, tmp_path):
         row = results["methods"][m]
         assert row["pcs_size"] == len(row["pcs"]) and row["passes"] >= 1 and row["pixels_shaded"] > 0
         assert row["cycles"] > 0
+    # each union view's overlap image (Nilsson12 Fig. 6), as .npy and .png
+    views = sorted(p.stem for p in (out / "images").glob("*.npy"))
+    assert views == ["toaster-ball.x", "toaster-ball.y", "toaster-ball.z"]  # depth only never separates them
+    assert all((out / "images" / f"{v}.png").exists() for v in views)
 
 
 def test_cost_sweep_runs_a_tiny_version(root, tmp_path):
