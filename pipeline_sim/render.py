@@ -189,7 +189,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
                         f"pattern, not '{pattern}'")
 
     setup = TriangleSetup(arch.triangle_setup, draw, ts, state.backface_culling, culling=algorithm,
-                          shading_view=state.shading_view)
+                          shading_view=state.shading_view, keep_degenerate=conservative)
     # the hierarchical tests of Munkberg11 start at coarse tiles; the others cover
     # their bounding geometry flat, as Wu13 does
     traverser = TileTraverser(arch.tile_traverser, setup.table, ts, draw.width, draw.height,

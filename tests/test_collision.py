@@ -133,6 +133,15 @@ def test_toaster_dodges_the_ball_in_time_only(root, tmp_path):
     gaps = [fcl.distance(fcl_object(toaster.at(t), toaster.faces), fcl_object(ball.at(t), ball.faces),
                          fcl.DistanceRequest(), fcl.DistanceResult()) for t in TIMES]
     assert min(gaps) > 0.1
+    # it has two slots: a thin rod put down into each, through the top's plane, touches it only
+    # without them
+    plain = C.make_body(C.ObjectSpec(shape="rounded_box", size=[0.8, 0.5, 0.6], subdivisions=3,
+                                     start=[-1.5, 0.0, 0.0]), 0, "plain")
+    for x0, x1, z0, z1 in C.slot_rects(np.array([0.8, 0.5, 0.6]), 2):
+        rod = fcl.CollisionObject(fcl.Box(0.02, 0.6, 0.02), fcl.Transform([(x0 + x1) / 2 - 1.5, 0.3, (z0 + z1) / 2]))
+        touches = [fcl.collide(rod, fcl_object(body.v0, body.faces), fcl.CollisionRequest(), fcl.CollisionResult())
+                   for body in (toaster, plain)]
+        assert touches == [0, 1], touches
     # ... while the swept volumes overlap: a point of the ball at t=0 is inside the toaster at t=1
     assert np.all(np.abs(ball.at(0.0).mean(axis=0) - toaster.at(1.0).mean(axis=0)) < [0.8, 0.5, 0.6])
     found = pcs(results)
@@ -143,10 +152,11 @@ def test_toaster_dodges_the_ball_in_time_only(root, tmp_path):
     assert methods["tz_union"]["passes"] < 3 and methods["tz_fragment"]["passes"] < 6
 
 
-def test_many_objects_no_missed_collision(tmp_path):
+@pytest.mark.parametrize("views", ["pair", "scene"])
+def test_many_objects_no_missed_collision(tmp_path, views):
     path = tmp_path / "many.toml"
-    path.write_text('kind = "collision"\nresolution = 12\n[random]\ncount = 24\nseed = 3\nextent = 3.0\n'
-                    'radius = 0.5\ntravel = 1.5\nsubdivisions = 0\n')
+    path.write_text(f'kind = "collision"\nresolution = {12 if views == "pair" else 48}\nviews = "{views}"\n'
+                    '[random]\ncount = 24\nseed = 3\nextent = 3.0\nradius = 0.5\ntravel = 1.5\nsubdivisions = 0\n')
     w = load_workload(path, load_arch())
     results = w.run().results
     assert assert_no_missed_collision(w, results) >= 3
@@ -189,6 +199,50 @@ def test_random_pairs_never_miss_a_collision(specs, resolution):
     assert_no_missed_collision(w, w.run().results)
 
 
+@settings(max_examples=25, deadline=None)
+@given(specs=scenes(), resolution=st.integers(2, 24))
+def test_scene_views_of_a_pair_decide_as_its_pair_views(specs, resolution):
+    """With two objects a scene view is the pair's view (the same box, the same triangles): its tests
+    from the appended fragments (per-pixel object lists, numpy) keep exactly the pairs the pair views'
+    blended union targets and second fragment pass keep, for every method."""
+    found = {}
+    for views in ("pair", "scene"):
+        w = C.Collision("random.toml", load_arch())
+        w.resolution, w.views = resolution, views
+        w.bodies = [C.make_body(spec, i, "random") for i, spec in enumerate(specs)]
+        found[views] = pcs(w.run().results)
+    assert found["pair"] == found["scene"]
+
+
+@st.composite
+def crowds(draw):
+    """Five to nine small objects in a 3-unit cube, each moving up to 1.5 units and turning."""
+    specs = []
+    for i in range(draw(st.integers(5, 9))):
+        start = np.array(draw(st.lists(st.floats(0.0, 3.0), min_size=3, max_size=3)))
+        step = np.array(draw(st.lists(st.floats(-1.5, 1.5), min_size=3, max_size=3)))
+        specs.append(C.ObjectSpec(shape=draw(st.sampled_from(["icosphere", "rounded_box"])), name=f"o{i}",
+                                  size=draw(st.lists(st.floats(0.2, 0.6), min_size=3, max_size=3)),
+                                  subdivisions=0, start=list(start), end=list(start + step),
+                                  turn=draw(st.lists(st.floats(-60, 60), min_size=3, max_size=3))))
+    return specs
+
+
+@settings(max_examples=15, deadline=None)
+@given(specs=crowds(), resolution=st.integers(4, 48))
+def test_scene_views_never_miss_a_collision(specs, resolution):
+    """Many objects, one view per axis over all of them: every pair fcl finds in contact at one of 201
+    times is in every method's PCS, and the PCS inclusion order holds."""
+    w = C.Collision("crowd.toml", load_arch())
+    w.resolution, w.views = resolution, "scene"
+    w.bodies = [C.make_body(spec, i, "crowd") for i, spec in enumerate(specs)]
+    results = w.run().results
+    assert_no_missed_collision(w, results)
+    found = pcs(results)
+    assert found["tz_fragment"] <= found["tz_union"] <= found["depth_only"] <= found["cullide"]
+    assert results["methods"]["tz_union"]["passes"] <= 3
+
+
 def test_exact_contact_between_dense_times_is_in_every_pcs():
     """A ball crossing 1000 units during the shutter hits a small box between two of the 201 times:
     fcl's dense test misses it, the exact coplanarity-cubic test finds it, and every method keeps it."""
@@ -215,6 +269,89 @@ def test_random_small_pairs_never_miss_an_exact_contact(specs, resolution):
     if C.swept_boxes_meet(*w.bodies) and exact_contact(*w.bodies):
         found = pcs(w.run().results)
         assert all((w.bodies[0].name, w.bodies[1].name) in pairs for pairs in found.values()), found
+
+
+SQUARE = [[-1.0, 0.0, -1.0], [1.0, 0.0, -1.0], [1.0, 0.0, 1.0], [-1.0, 0.0, 1.0]]
+
+
+def test_flat_sheets_seen_edge_on_collide_in_every_pcs():
+    """Two square sheets of two triangles each: one lies still in the plane y = 0, the other stands in
+    a plane x = const and sweeps along x through it (they cross for t in [1/3, 2/3]). The first is
+    edge-on in the x and z views, the second in the y and z views: a segment of zero area, which still
+    touches pixels. Every method keeps the pair (triangle setup drops zero-area triangles only in
+    standard mode; it used to drop them in conservative mode too, separating the pair in the x view)."""
+    lying = C.ObjectSpec(shape="mesh", name="lying", vertices=SQUARE, faces=[[0, 1, 2], [0, 2, 3]])
+    standing = C.ObjectSpec(shape="mesh", name="standing", vertices=[[y, x, z] for x, y, z in SQUARE],
+                            faces=[[0, 1, 2], [0, 2, 3]], start=[-3.0, 0.0, 0.0], end=[3.0, 0.0, 0.0])
+    w = C.Collision("sheets.toml", load_arch())
+    w.resolution = 16
+    w.bodies = [C.make_body(spec, i, "sheets") for i, spec in enumerate((lying, standing))]
+    assert fcl_colliding(*w.bodies) and not fcl_colliding(*w.bodies, times=[0.0, 0.3, 0.7, 1.0])
+    found = pcs(w.run().results)
+    assert all(("lying", "standing") in pairs for pairs in found.values()), found
+
+
+def box_mesh(lo, hi) -> tuple[list, list]:
+    """The 12 triangles of the axis-aligned box [lo, hi] (trimesh)."""
+    import trimesh
+
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    box = trimesh.creation.box(extents=hi - lo)
+    return (np.asarray(box.vertices) + (lo + hi) / 2).tolist(), np.asarray(box.faces).tolist()
+
+
+def presence(x0: float, x1: float, left0: float, width: float, speed: float) -> tuple[float, float]:
+    """The times in [0, 1] at which the x extent [left0 + speed t, left0 + width + speed t] meets the
+    pixel's [x0, x1] (empty when the first exceeds the second)."""
+    lo, hi = (x0 - left0 - width) / speed, (x1 - left0) / speed
+    return max(lo, 0.0), min(hi, 1.0)
+
+
+def test_overlap_image_colours_agree_with_a_closed_form(tmp_path):
+    """Nilsson12 Fig. 6 on a small case worked out by hand. Seen along z, box A (z in [0, 0.4]) slides
+    from x in [-1, 1] by 1 along x; box B, two parts (upper: y in [0.2, 1], z in [0.2, 0.6], depth
+    overlapping A; lower: y in [-1, -0.2], z in [0.8, 1.2], in front of it), follows from x in [-5, -4]
+    by 6. Per pixel centre the times each box covers it are intervals in closed form, and its depths
+    its part's: the image is red (time), blue (depth), purple (both) or black where they say, on
+    every pixel whose decision is clear by more than the conservative rasterizer's slack (pixels
+    within 1.5 pixels of a y edge and times within 0.15 of a decision are left out)."""
+    va, fa = box_mesh([-1.0, -1.0, 0.0], [1.0, 1.0, 0.4])
+    vu, fu = box_mesh([-5.0, 0.2, 0.2], [-4.0, 1.0, 0.6])
+    vl, fl = box_mesh([-5.0, -1.0, 0.8], [-4.0, -0.2, 1.2])
+    text = ('kind = "collision"\nresolution = 64\n[[objects]]\nname = "A"\nshape = "mesh"\n'
+            f'vertices = {va}\nfaces = {fa}\nend = [1.0, 0.0, 0.0]\n'
+            '[[objects]]\nname = "B"\nshape = "mesh"\n'
+            f'vertices = {vu + vl}\nfaces = {fu + [[i + len(vu) for i in f] for f in fl]}\n'
+            'end = [6.0, 0.0, 0.0]\n')
+    path = tmp_path / "fig6.toml"
+    path.write_text(text)
+    w = load_workload(path, load_arch())
+    image = w.run().images["A-B.z"]
+    lo, hi = C.view_box(*w.bodies)
+    n = 64
+    checked = {}
+    for row in range(n):
+        y = hi[1] - (row + 0.5) / n * (hi[1] - lo[1])
+        part = "upper" if 0.2 < y < 1.0 else "lower" if -1.0 < y < -0.2 else None
+        if min(abs(y - e) for e in (-1.0, -0.2, 0.2, 1.0)) < 1.5 * (hi[1] - lo[1]) / n:
+            continue
+        for col in range(n):
+            x0, x1 = lo[0] + col / n * (hi[0] - lo[0]), lo[0] + (col + 1) / n * (hi[0] - lo[0])
+            a0, a1 = presence(x0, x1, -1.0, 2.0, 1.0) if -1.0 < y < 1.0 else (1.0, -1.0)
+            b0, b1 = presence(x0, x1, -5.0, 1.0, 6.0) if part else (1.0, -1.0)
+            if abs(a1 - a0) < 0.15 or abs(b1 - b0) < 0.15:
+                continue  # a box that touches the pixel for a moment, or nearly does
+            both = a0 <= a1 and b0 <= b1
+            gap = max(a0, b0) - min(a1, b1)  # < 0: the times overlap by -gap
+            if both and abs(gap) < 0.15:
+                continue  # a decision too close to call at this resolution
+            time = both and gap < 0
+            depth = both and part == "upper"
+            colour = {(True, True): "purple", (True, False): "red", (False, True): "blue", (False, False): "black"}
+            want = colour[(time, depth)]
+            assert tuple(image[row, col]) == (float(time), 0.0, float(depth)), (row, col, want)
+            checked[want] = checked.get(want, 0) + 1
+    assert all(checked.get(c, 0) >= 5 for c in ("purple", "red", "blue", "black")), checked
 
 
 @pytest.mark.parametrize("axis", [0, 1, 2])
@@ -269,6 +406,20 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys, text, message):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("views", ["pair", "scene"])
+def test_objects_whose_swept_boxes_never_meet_give_empty_sets(tmp_path, views):
+    """No pair to test: the run still has one view (of every object), and every PCS is empty."""
+    path = tmp_path / "apart.toml"
+    path.write_text(f'kind = "collision"\nresolution = 8\nviews = "{views}"\n[[objects]]\nshape = "icosphere"\n'
+                    '[[objects]]\nshape = "icosphere"\nstart = [5.0, 0.0, 0.0]\n')
+    out = tmp_path / "run"
+    assert main(["run", str(path), "--out", str(out), "--quiet"]) == 0
+    results = json.loads((out / "results.json").read_text())
+    assert results["swept_box_pairs"] == 0
+    assert all(row["pcs_size"] == 0 and row["passes"] == 0 for row in results["methods"].values())
+    assert (out / "passes" / "scene.x").is_dir()
+
+
 def test_results_json_is_strict_and_lists_every_method(root, tmp_path):
     out = tmp_path / "run"
     assert main(["run", str(root / APP / "toaster.toml"), "--out", str(out), "--quiet"]) == 0
@@ -277,3 +428,30 @@ def test_results_json_is_strict_and_lists_every_method(root, tmp_path):
         row = results["methods"][m]
         assert row["pcs_size"] == len(row["pcs"]) and row["passes"] >= 1 and row["pixels_shaded"] > 0
         assert row["cycles"] > 0
+    # each union view's overlap image (Nilsson12 Fig. 6), as .npy and .png
+    views = sorted(p.stem for p in (out / "images").glob("*.npy"))
+    assert views == ["toaster-ball.x", "toaster-ball.y", "toaster-ball.z"]  # depth only never separates them
+    assert all((out / "images" / f"{v}.png").exists() for v in views)
+
+
+def test_cost_sweep_runs_a_tiny_version(root, tmp_path):
+    """workloads/sweeps/collision_cost.toml on 6 objects at two resolutions: every point runs, each
+    method's PCS size is a column, and the PCS inclusion order holds at each point."""
+    import pandas as pd
+
+    from pipeline_sim.sweep import load_sweep, run_sweep
+
+    shipped = (root / "workloads/sweeps/collision_cost.toml").read_text()
+    text = shipped.replace('"../apps/collision/many.toml"', '"many.toml"').replace("[16, 32, 64, 128, 256, 512]",
+                                                                                  "[8, 32]")
+    assert text.count("../apps") == 0 and "[8, 32]" in text
+    (tmp_path / "many.toml").write_text('kind = "collision"\nviews = "scene"\n[random]\ncount = 6\nseed = 2\n'
+                                        'extent = 1.0\nsubdivisions = 0\n')
+    (tmp_path / "sweep.toml").write_text(text)
+    frame = run_sweep(load_sweep(tmp_path / "sweep.toml"), tmp_path / "out", executor="serial", progress=False)
+    assert (frame.status == "ok").all() and len(frame) == 2
+    points = pd.read_csv(tmp_path / "out" / "points.csv").sort_values("workload.resolution")
+    size = {m: points[f"result.methods.{m}.pcs_size"].to_numpy() for m in C.METHODS}
+    assert np.all(size["tz_fragment"] <= size["tz_union"]) and np.all(size["tz_union"] <= size["depth_only"])
+    assert np.all(size["depth_only"] <= size["cullide"]) and np.all(points["result.swept_box_pairs"] >= size["cullide"])
+    assert points.frame_cycles.iloc[0] < points.frame_cycles.iloc[1]  # finer views shade more pixels

@@ -234,3 +234,28 @@ def test_occlusion_workload_bad_input_is_one_line(tmp_path, capsys, text, messag
     assert main(["run", str(path), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
     assert message in err and "Traceback" not in err and len(err.splitlines()) == 1
+
+
+def test_cost_sweep_runs_a_tiny_version(root, tmp_path):
+    """workloads/sweeps/occlusion_cost.toml on a tiny scene, narrowed to two points: each point's
+    architecture and table have its configuration, its results are that configuration's row."""
+    import pandas as pd
+
+    from pipeline_sim.sweep import load_sweep, run_sweep
+
+    shipped = (root / "workloads/sweeps/occlusion_cost.toml").read_text()
+    text = (shipped.replace('"../apps/occlusion/occlusion.toml"', '"occlusion.toml"')
+            .replace("= [4, 8, 16]", "= [8]").replace("= [[4], [8], [16]]", "= [[8]]")
+            .replace("= [1, 4, 8]", "= [1, 4]").replace("= [[1], [4], [8]]", "= [[1], [4]]")
+            .replace("= [1, 2]", "= [1]").replace("= [[1], [2]]", "= [[1]]"))
+    (tmp_path / "occlusion.toml").write_text('kind = "occlusion"\nwidth = 16\nheight = 16\nspp = 1\nproxies = 3\n')
+    (tmp_path / "sweep.toml").write_text(text)
+    frame = run_sweep(load_sweep(tmp_path / "sweep.toml"), tmp_path / "out", executor="serial", progress=False)
+    assert (frame.status == "ok").all() and len(frame) == 2
+    points = pd.read_csv(tmp_path / "out" / "points.csv")
+    for _, row in points.iterrows():
+        table = pd.read_csv(tmp_path / "out" / "points" / row.point_id / "occlusion_rate.csv")
+        assert len(table) == 1 and table.time_slices[0] == row["zcull.time_slices"]
+        assert row["result.interval_cycles"] == table.frame_cycles[0]
+        assert row["result.mean_box_comparisons"] == table.mean_box_comparisons[0]
+        assert row["result.wrongly_occluded"] == 0

@@ -1,7 +1,7 @@
 """Triangle setup against independent float64 numpy computations."""
 
 import numpy as np
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pipeline_sim.config import load_arch
@@ -147,3 +147,93 @@ def test_linearized_edges_bound_the_edge_functions(tri, seed):
             e = sgn * np.dot(np.cross(p[j], p[i]), s)
             bound = np.dot(tb.edge_h[0, k], s) + tb.edge_gamma[0, k] * t
             assert e <= bound + 1e-9 * (1 + abs(bound) + abs(e))
+
+
+def test_zero_area_triangles_kept_without_facing_in_conservative_mode():
+    """A repeated vertex and a horizontal segment (exactly zero determinant): dropped in standard mode,
+    kept with no facing (never culled as back-facing) in conservative mode; both counted."""
+    q = np.array([[[0.1, 0.1, 0.0, 1.0], [0.1, 0.1, 0.0, 1.0], [0.5, -0.2, 0.0, 1.0]],
+                  [[-0.5, 0.0, 0.0, 1.0], [0.25, 0.0, 0.0, 1.0], [0.75, 0.0, 0.0, 1.0]]])
+    for keep in (False, True):
+        d = draw_from_clip(q, q, width=W, height=H)
+        setup = TriangleSetup(load_arch().triangle_setup, d, 1, backface_culling=True, keep_degenerate=keep)
+        alive, _, events = setup.run(np.arange(d.n, dtype=np.int64))
+        assert events[EV_DEGENERATE] == 2
+        assert list(alive) == ([0, 1] if keep else [])
+        if keep:
+            assert list(setup.table.facing) == [0, 0] and not np.any(setup.table.flags & FLAG_EDGE)
+
+
+R = 16  # pixels per side of the conservative passes below
+# clip coordinates on pixel boundaries (multiples of 2/R) and pixel centres, where rounding is at its worst
+ON_GRID = st.integers(-R // 2 - 2, R // 2 + 2).map(lambda k: 2.0 * k / R) | \
+    st.integers(-R // 2 - 2, R // 2 + 1).map(lambda k: (2.0 * k + 1.0) / R)
+COORD = ON_GRID | st.floats(-1.3, 1.3)
+
+
+@st.composite
+def edge_on_triangles(draw):
+    """A triangle whose third vertex is on the segment of the first two (at a grid point, an end point or
+    anywhere along it), or off it by a tiny distance (near edge-on), static or moving so that it stays on
+    the moving segment (the same parameter on both end poses), with depths in [-0.9, 0.9]; w = 1 (an
+    orthographic view). Returns (q, r), each (1, 3, 4)."""
+    poses = []
+    along = draw(st.sampled_from([0.0, 1.0, 0.5]) | st.floats(0.0, 1.0))
+    off = draw(st.sampled_from([0.0, 0.0, 1e-12, 1e-9, 1e-6, 1e-3, 3e-2]))
+    motion = draw(st.sampled_from(["static", "translate", "segment"]))
+    for pose in range(2 if motion == "segment" else 1):
+        a = np.array([draw(COORD), draw(COORD)])
+        b = a if draw(st.integers(0, 9)) == 0 else np.array([draw(COORD), draw(COORD)])  # 1 in 10: a point
+        c = a + along * (b - a)
+        if off:
+            n = np.array([a[1] - b[1], b[0] - a[0]])
+            c = c + off * (n / np.linalg.norm(n) if np.any(n) else np.array([1.0, 0.0]))
+        tri = np.zeros((1, 3, 4))
+        tri[0, :, :2] = [a, b, c]
+        tri[0, :, 2] = [draw(st.floats(-0.9, 0.9)) for _ in range(3)]
+        tri[0, :, 3] = 1.0
+        poses.append(tri)
+    if motion == "translate":
+        poses.append(poses[0] + [draw(st.floats(-0.5, 0.5)), draw(st.floats(-0.5, 0.5)), 0.0, 0.0])
+    q, r = poses[0], poses[-1]
+    return q, r
+
+
+def conservative_boxes(q: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Per pixel of an R x R conservative pass, the union of the tz-boxes (t_lo, z_lo, t_hi, z_hi) of
+    the (triangle, pixel) fragments; (2, 2, -2, -2) where there are none."""
+    from pipeline_sim.pass_state import PassState
+    from pipeline_sim.render import RenderPass, run_pass
+    from pipeline_sim.shaders import interval_shader
+    from pipeline_sim.targets import ShaderOutput, Target
+
+    p = RenderPass(draw=draw_from_clip(q, r, width=R, height=R), arch=load_arch(), spp=1, name="edge_on",
+                   state=PassState(mode="conservative", depth_test="always", depth_write=False),
+                   shader=interval_shader, outputs=(ShaderOutput("box", 4),),
+                   targets=(Target("box", source="box", blend=("min", "min", "max", "max"),
+                                   clear=(2.0, 2.0, -2.0, -2.0), depth="always"),))
+    return run_pass(p).images["box"][0]
+
+
+@settings(max_examples=150, deadline=None)
+@given(edge_on_triangles())
+def test_conservative_mode_covers_every_pixel_an_edge_on_triangle_touches(tri):
+    """Nilsson12 §2: in conservative mode every pixel a point of the triangle falls in at some time gets
+    a fragment whose tz-box holds that (t, z), also when the triangle is seen edge-on (a segment or a
+    point for every t) or nearly so. Dense sampling in float64: 41 times x 66 barycentric points, each
+    projected by hand (pixel boundaries at multiples of 2/R in clip space, row 0 at the top)."""
+    q, r = tri
+    box = conservative_boxes(q, r)
+    s, u = np.meshgrid(np.linspace(0, 1, 11), np.linspace(0, 1, 11))
+    keep = s + u <= 1
+    bary = np.stack([1 - s[keep] - u[keep], s[keep], u[keep]], axis=1)
+    for t in np.linspace(0, 1, 41):
+        pts = bary @ ((1 - t) * q[0] + t * r[0])
+        col = np.floor((pts[:, 0] + 1) / 2 * R).astype(int)
+        row = np.floor((1 - pts[:, 1]) / 2 * R).astype(int)
+        on = (col >= 0) & (col < R) & (row >= 0) & (row < R)
+        cell = box[row[on], col[on]]
+        eps = 1e-6
+        assert np.all(cell[:, 0] <= t + eps) and np.all(t - eps <= cell[:, 2]), (t, cell)
+        z = pts[on, 2]
+        assert np.all(cell[:, 1] <= z + eps) and np.all(z - eps <= cell[:, 3]), (t, cell, z)

@@ -23,8 +23,21 @@ Implements docs/pipeline.md §2.1. For each triangle of a batch:
 * conservative facing: the 2DH determinant D(t, u, v) = p0 . (p2 x p1) is a
   cubic in t and bilinear in (u, v); its Bernstein coefficients bound it, so
   a triangle is culled as back-facing only if D < 0 everywhere (Gribel10 §4.3,
-  Munkberg and Akenine-Moller 2011) and dropped as degenerate if two
-  vertices coincide or D == 0 everywhere;
+  Munkberg and Akenine-Moller 2011);
+* zero area throughout (two vertices coincide for every (t, u, v), or D == 0
+  everywhere): counted as degenerate. Conservative mode (Nilsson12 §2) keeps
+  the triangle, with no facing: edge-on it is a segment or a point that still
+  touches pixels, and the tile test's moving bounding box finds them (a
+  triangle without facing gets no edge functions). Standard mode drops it,
+  since no sample can be covered. In exact arithmetic the sample tester
+  misses where D = 0, and the tie rule alone would miss too: off the
+  triangle's line some edge function is negative (the three sum to D = 0), on
+  it all three are zero, and two of its edges run in opposite directions (the
+  edge vectors sum to zero), whose normals are never both top-left, while a
+  zero-length edge's normal (0, 0) is not top-left. Coinciding vertices are
+  the same float32 bits at every sample, so there the argument holds bit for
+  bit; for D == 0 evaluated in float64 it holds up to the rounding of the
+  tester's float32 vertices (a sliver of relative width about 2^-24);
 * conservative screen bounds: the vertices at ts and te, widened by the lens
   shift at u, v = +-1 (exact extremes, since x = (X + u LX) / W is monotone in
   t and linear in u while W > 0), or the whole screen when a vertex path
@@ -50,7 +63,7 @@ from units.rounding import F32_REL
 EVENT_MEANINGS = {
     "culled_frustum": "triangles outside the view frustum at every time and lens position",
     "culled_backface": "triangles facing away at every (t, u, v)",
-    "degenerate": "triangles of zero area throughout",
+    "degenerate": "triangles of zero area throughout (dropped, but kept in conservative mode)",
     "crossing_w0": "triangles with a vertex path crossing w = 0",
     "moving": "triangles that move during the shutter",
     "defocused": "triangles with a lens shift",
@@ -112,11 +125,12 @@ def _det(x0, y0, w0, x1, y1, w1, x2, y2, w2):
 
 
 @nb.njit(cache=True)
-def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_culling, view, table, depth_planes,
-                 status, ops, events):
+def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_culling, keep_degenerate, view, table,
+                 depth_planes, status, ops, events):
     """Triangle setup for the triangles ``ids`` (docs/pipeline.md §2.1; Munkberg11 §3-4, Gribel10 eq. 3-5).
 
-    ``view``: the (u, v, t) of the reference camera whose view keys the
+    ``keep_degenerate``: keep triangles of zero area throughout (conservative
+    mode, Nilsson12 §2) rather than drop them. ``view``: the (u, v, t) of the reference camera whose view keys the
     shading cache (``ref``; Nilsson12 §2, §8). Writes the per-triangle
     ``table`` (``pipeline_sim.records.TRIANGLE``) in place, ``status`` per batch item and accumulates ``ops`` (arithmetic
     classes) and ``events``.
@@ -288,9 +302,12 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
                     bern_max = max(bern_max, f[0])
         ops[OP_MADD] += (4 if moving else 1) * nu * nu * 15
         ops[OP_MUL] += (4 if moving else 1) * nu * nu * 6
-        # dropped: two vertices that coincide for every (t, u, v), or an exactly
-        # zero determinant; a tiny one can still cover samples (a vertex near
-        # the 2DH origin keeps its direction), so it is kept
+        # zero area throughout: two vertices that coincide for every (t, u, v), or an
+        # exactly zero determinant (a tiny one can still cover samples: a vertex near the
+        # 2DH origin keeps its direction). Conservative mode keeps it (an edge-on triangle
+        # is a segment or a point that still touches pixels; its tiles are found by the
+        # moving bounding box, without edge functions, since it has no facing); standard
+        # mode drops it, since the sample tester covers no sample of it (module docstring)
         coincide = False
         for k in range(3):
             j = (k + 1) % 3
@@ -304,12 +321,14 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
                         same = False
             if same:
                 coincide = True
-        if coincide or (bern_max == 0.0 and bern_min == 0.0):
-            status[b] = ST_DEGENERATE
-            events[EV_DEGENERATE] += 1
-            continue
         tol = FACING_REL * scale  # facing is only claimed with a clear margin
-        if bern_min > tol:
+        if coincide or (bern_max == 0.0 and bern_min == 0.0):
+            events[EV_DEGENERATE] += 1
+            if not keep_degenerate:
+                status[b] = ST_DEGENERATE
+                continue
+            facing[tri] = 0  # neither front nor back: never culled as back-facing
+        elif bern_min > tol:
             facing[tri] = 1
         elif bern_max < -tol:
             facing[tri] = -1
@@ -491,7 +510,8 @@ class TriangleSetup:
 
     ``table``: the per-triangle table (``pipeline_sim.records.TRIANGLE``);
     ``extension``: the fields the culling algorithm ``culling`` (a module of
-    ``units.culling``) adds to it, filled by its ``setup_extras``; None when it adds none.
+    ``units.culling``) adds to it, filled by its ``setup_extras``; None when it adds none;
+    ``keep_degenerate``: keep triangles of zero area throughout (conservative mode).
     """
 
     name = "triangle_setup"
@@ -500,9 +520,11 @@ class TriangleSetup:
     timing_dependent = TIMING_DEPENDENT
 
     def __init__(self, config, draw, tile_size: int, backface_culling: bool = False,
-                 culling: ModuleType | None = None, shading_view: tuple[float, float, float] = (0.0, 0.0, 0.5)):
+                 culling: ModuleType | None = None, shading_view: tuple[float, float, float] = (0.0, 0.0, 0.5),
+                 keep_degenerate: bool = False):
         self.config = config
         self.backface_culling = backface_culling
+        self.keep_degenerate = keep_degenerate  # conservative mode: zero-area triangles still touch pixels
         self.shading_view = np.array(shading_view, np.float64)  # (u, v, t) of the shading cache's reference camera
         self.draw = draw
         self.tile_size = tile_size
@@ -518,7 +540,7 @@ class TriangleSetup:
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
         setup_kernel(ids, d.q, d.r, d.lens_x, d.lens_y, d.width, d.height, self.tile_size,
-                     self.backface_culling, self.shading_view, self.table, d.depth_w is not None, status, ops, events)
+                     self.backface_culling, self.keep_degenerate, self.shading_view, self.table, d.depth_w is not None, status, ops, events)
         self.last_status = status
         kept = ids[status == ST_OK]
         if self.extras is not None:

@@ -206,6 +206,9 @@ class Occlusion(Workload):
             "proxies": s.proxies, "truly_occluded": int(sum(hidden)),
             "configuration": dict(zip(("tile_size", "time_slices", "lens_boxes"), own)),
             "occlusion_rate": rows[0]["occlusion_rate"], "wrongly_occluded": rows[0]["wrongly_occluded"],
+            # the cost of that configuration's queries: its pass's cycles, the tiles and box comparisons per query
+            "interval_cycles": rows[0]["frame_cycles"], "mean_tiles": rows[0]["mean_tiles"],
+            "mean_box_comparisons": rows[0]["mean_box_comparisons"],
             "queries": queries,
         }, tables={"occlusion_rate": table})
 
