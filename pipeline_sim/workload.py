@@ -50,8 +50,8 @@ Progress = Callable[[int, int], None] | None
 class WorkloadResult:
     """What a workload's run gives: every pass's result in run order, its derived results
     (JSON-able: ``results.json``), its tables (one CSV file each), its arrays (one .npy file each), its
-    figures (one PNG file each) and its images (linear RGBA (H, W, 4), each written as ``images/<name>.npy``
-    and ``.png``: e.g. the views of a lens resolve)."""
+    figures (one PNG file each) and its images (linear RGB(A), (H, W, 3) or (H, W, 4), each written as
+    ``images/<name>.npy`` and ``.png``: e.g. the views of a lens resolve, a collision view's overlaps)."""
 
     passes: dict[str, Any]  # pass name -> pipeline_sim.render.PassResult, in run order
     results: dict[str, Any] = field(default_factory=dict)
