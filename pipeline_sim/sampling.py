@@ -1,6 +1,7 @@
 """Per-pixel 5D sample patterns (x, y, u, v, t) for stochastic rasterization.
 
-The default pattern follows Munkberg et al., "Hierarchical Stochastic Motion
+The ``net`` pattern (the default before ``net5``, and the pattern of accuracy
+references) follows Munkberg et al., "Hierarchical Stochastic Motion
 Blur Rasterization" (HPG 2011), §5 and Appendix A (eq. 10-19): the
 Grünschloß-Keller (0, m, 3)-net in base 2 with generator matrices
 
@@ -21,7 +22,8 @@ lens coordinates are "padded" from an independently scrambled 2D LP net,
 assigned through a per-pixel random permutation and mapped to the unit disk
 with the Shirley-Chiu concentric map (or to the square ``[-1, 1]^2``).
 
-The ``net5`` pattern is stratified in all five dimensions and still t-ordered:
+The ``net5`` pattern (the default) is stratified in all five dimensions and
+still t-ordered:
 the first 2^m points of the 4D Sobol sequence give (x, y, u, v) and the point's
 index gives ``t = j / 2^m`` (the index-as-coordinate construction that turns a
 (t, s)-sequence into a (t, m, s+1)-net; Niederreiter 1992, Lemma 4.22). Each
