@@ -23,8 +23,16 @@ References (:class:`ReferenceSpec`, :func:`reference_image`):
 
 * ``"pipeline"``: the same simulated pipeline with per-sample shading (one
   shader execution per covered sample, no shading cache) at ``spp`` samples
-  per pixel (default 256) of the default t-ordered net pattern, with the
-  spec's ``seed`` (independent of the scene's own seed).
+  per pixel (default 256) of the ``net`` pattern (the t-ordered (0, m, 3)-net,
+  not the default ``net5``), with the spec's ``seed`` (independent of the
+  scene's own seed). The reference keeps ``net`` on purpose: a construction
+  independent of the default pattern's, so a bias of ``net5`` shows in its
+  error instead of cancelling against a reference that shares it, and the
+  references (and their cache keys) of the runs before ``net5`` became the
+  default stay valid. Its own error at 256 spp (about 0.002 RMSE on a
+  motion + defocus scene, docs/performance.md) adds in quadrature to a
+  measured error and is small beside that of a 16-64 spp image; raise
+  ``spp`` or use ``"accumulation"`` for a closer one.
 * ``"accumulation"``: the accumulation buffer of Haeberli and Akeley
   (SIGGRAPH 1990): ``passes`` (default 256) single-sample passes, each
   rendering every pixel with ONE point ``(dx, dy, t, u, v)`` (a one-row sample
@@ -193,7 +201,7 @@ class ReferenceSpec:
     """How a reference image is made (see the module docstring).
 
     kind ``"pipeline"``: this pipeline, per-sample shading, ``spp`` samples
-    per pixel (net pattern, power of two), sample seed ``seed``.
+    per pixel (the ``net`` pattern, power of two), sample seed ``seed``.
     kind ``"accumulation"``: ``passes`` single-sample passes at jointly
     stratified (scrambled Sobol, seed ``seed``) points, averaged.
     """
@@ -217,7 +225,7 @@ class ReferenceSpec:
                 raise UserError(f"reference {name} must be an integer, got {v!r}")
         if not 1 <= self.spp <= 1 << 16 or self.spp & (self.spp - 1):
             raise UserError(f"reference spp = {self.spp} must be a power of two from 1 to 65536 "
-                            "(the default net sample pattern)")
+                            "(the reference's net sample pattern)")
         if self.passes < 1:
             raise UserError(f"reference passes must be >= 1, got {self.passes}")
         if not 0 <= self.seed < 1 << 63:

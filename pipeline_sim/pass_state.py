@@ -24,7 +24,7 @@ import numpy as np
 
 from pipeline_sim.definitions import BLEND_MODES, DEPTH_FUNCS
 from pipeline_sim.errors import UserError
-from pipeline_sim.sampling import PATTERNS
+from pipeline_sim.sampling import DEFAULT_PATTERN, PATTERNS
 from pipeline_sim.settings import FORBID, ACCURACY, IMAGE, Flag, count, number, setting
 
 # a pass names a generated pattern; a sample table comes with the pass itself (RenderPass.sample_table)
@@ -79,8 +79,9 @@ class PassState:
                                      "(conservative for moving and defocused triangles)")
     clip: ClipPlanes = field(default_factory=ClipPlanes)
     sample_pattern: Literal[SAMPLE_PATTERNS] = setting(
-        "net", ACCURACY, "`net`: the t-ordered (0, m, 3)-net of Munkberg11 §5; `net5`: a t-ordered (t, m, 5)-net, "
-        "stratified in all five dimensions (docs/pipeline.md §3); `sobol`, `stratified`, `random`; "
+        DEFAULT_PATTERN, ACCURACY, "`net5`: a t-ordered (t, m, 5)-net, "
+        "stratified in all five dimensions (docs/pipeline.md §3); `net`: the t-ordered (0, m, 3)-net of "
+        "Munkberg11 §5 with a separately padded lens; `sobol`, `stratified`, `random`; "
         "all scrambled per pixel; `interleave`: each pixel takes spp of a fixed set of (u, v, t) tuples",
         reference="net")
     interleave_tuples: count(1, 64) = setting(64, ACCURACY, "size of that fixed set (one bit each in a tile's "

@@ -1,6 +1,7 @@
 """Per-pixel 5D sample patterns (x, y, u, v, t) for stochastic rasterization.
 
-The default pattern follows Munkberg et al., "Hierarchical Stochastic Motion
+The ``net`` pattern (the default before ``net5``, and the pattern of accuracy
+references) follows Munkberg et al., "Hierarchical Stochastic Motion
 Blur Rasterization" (HPG 2011), §5 and Appendix A (eq. 10-19): the
 Grünschloß-Keller (0, m, 3)-net in base 2 with generator matrices
 
@@ -21,7 +22,8 @@ lens coordinates are "padded" from an independently scrambled 2D LP net,
 assigned through a per-pixel random permutation and mapped to the unit disk
 with the Shirley-Chiu concentric map (or to the square ``[-1, 1]^2``).
 
-The ``net5`` pattern is stratified in all five dimensions and still t-ordered:
+The ``net5`` pattern (the default) is stratified in all five dimensions and
+still t-ordered:
 the first 2^m points of the 4D Sobol sequence give (x, y, u, v) and the point's
 index gives ``t = j / 2^m`` (the index-as-coordinate construction that turns a
 (t, s)-sequence into a (t, m, s+1)-net; Niederreiter 1992, Lemma 4.22). Each
@@ -78,6 +80,9 @@ MAX_SPP = 1 << 16
 _FRAC_BITS = 24
 #: Sample patterns :func:`make_samples` generates; "table" also needs the user's table.
 PATTERNS = ("net", "random", "stratified", "sobol", "table", "interleave", "net5")
+#: The default pattern (of :func:`make_samples` and of a pass, ``PassState.sample_pattern``): stratified in all
+#: five dimensions, its error falls faster with spp than ``net``'s (docs/performance.md, convergence).
+DEFAULT_PATTERN = "net5"
 #: Patterns whose spp must be a power of two (their strata are nets in base 2).
 _POWER_OF_TWO = ("net", "sobol", "net5")
 _LENS_SHAPES = ("disk", "square")
@@ -728,7 +733,7 @@ def make_samples(
     *,
     lens: bool,
     motion: bool,
-    pattern: str = "net",
+    pattern: str = DEFAULT_PATTERN,
     table: np.ndarray | None = None,
     lens_shape: str = "disk",
     scramble_table: bool = False,

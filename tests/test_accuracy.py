@@ -219,8 +219,10 @@ def test_reference_keeps_the_image_settings_such_as_clip_planes(scene):
     """A sweep point with a user clip plane is scored against a reference with that clip plane.
 
     The reference must equal a plain per-sample render with the same clip at
-    the reference's spp and seed; before the settings declared their effects,
-    the reference reset the whole tile-test section and dropped the plane.
+    the reference's spp, seed and sample pattern (`net`, the declared reference
+    of pass.sample_pattern, not the default net5); before the settings declared
+    their effects, the reference reset the whole tile-test section and dropped
+    the plane.
     """
     clip = "pass.clip.t_hi=0.3"
     spec = ReferenceSpec(spp=16)
@@ -228,7 +230,8 @@ def test_reference_keeps_the_image_settings_such_as_clip_planes(scene):
     assert clipped.pass_state.clip.t_hi == 0.3
     clipped_ref = reference_image(clipped, spec, arch=bbox)
     at_reference = scene.replace(image=dataclasses.replace(scene.image, spp=16, seed=spec.seed))
-    direct = render_scene(*apply_settings(at_reference, load_arch(), [clip, "pass.shading_mode='per_sample'"])).image
+    direct = render_scene(*apply_settings(at_reference, load_arch(),
+                                          [clip, "pass.shading_mode='per_sample'", "pass.sample_pattern='net'"])).image
     assert np.array_equal(clipped_ref, direct)
     unclipped_ref = reference_image(scene, spec)
     point = render_scene(*apply_settings(scene.replace(image=dataclasses.replace(scene.image, spp=8)), load_arch(),

@@ -162,7 +162,7 @@ def check_pixel_nets(s: SampleSet, m: int) -> None:
 
 @pytest.mark.parametrize("m", range(0, 7))
 def test_scrambled_pixels_are_nets(m):
-    s = make_samples(3, 2, 2**m, 7, lens=True, motion=True, lens_shape="square")
+    s = make_samples(3, 2, 2**m, 7, lens=True, motion=True, pattern="net", lens_shape="square")
     assert len(s.x) == 6 * 2**m
     for arr in (s.x, s.y, s.u, s.v, s.t):
         assert arr.dtype == np.float32 and arr.shape == (6 * 2**m,)
@@ -177,7 +177,7 @@ def test_scrambled_pixels_are_nets(m):
 @settings(max_examples=25, deadline=None)
 @given(m=st.integers(0, 10), seed=st.integers(0, 2**64 - 1))
 def test_property_any_seed_gives_scrambled_net(m, seed):
-    s = make_samples(2, 1, 2**m, seed, lens=True, motion=True, lens_shape="square")
+    s = make_samples(2, 1, 2**m, seed, lens=True, motion=True, pattern="net", lens_shape="square")
     check_pixel_nets(s, m)
 
 
@@ -387,7 +387,7 @@ def test_kernel_concentric_matches_public_and_square():
 def test_star_discrepancy_beats_random():
     m = 8
     net = t_ordered_net(m)[:, :2]
-    s = make_samples(1, 1, 2**m, 5, lens=False, motion=True)
+    s = make_samples(1, 1, 2**m, 5, lens=False, motion=True, pattern="net")
     scrambled = np.stack([s.x, s.y], axis=1).astype(np.float64)
     d_net = qmc.discrepancy(net, method="L2-star")
     d_scr = qmc.discrepancy(scrambled, method="L2-star")
