@@ -22,7 +22,9 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import hashlib
 import importlib
+import json
 import pkgutil
 import tomllib
 from dataclasses import dataclass, field
@@ -107,6 +109,9 @@ class Workload:
     #: against it through ``pipeline_sim.schema`` and hands :meth:`load` the instance as ``data``;
     #: docs/workloads.md lists every kind's keys from it (``pipeline_sim.docgen``).
     file_schema: ClassVar[type | None] = None
+    #: A kind with a file schema: its file's settings as validated, with what a command changed
+    #: (:meth:`from_settings`); :meth:`resolved` lists them and :attr:`digest` hashes them.
+    settings_file: Any = None
 
     def __init__(self, path: Path, arch: ArchConfig) -> None:
         self.path = Path(path)
@@ -122,6 +127,14 @@ class Workload:
         :data:`IMAGE_KEYS`, already checked); a kind that has no such setting refuses them with one line."""
         raise NotImplementedError
 
+    @classmethod
+    def from_settings(cls, path: Path, data: Any, arch: ArchConfig, image: dict[str, Any]) -> "Workload":
+        """The workload of a kind with a file schema whose image settings are keys of its file of the same
+        names: ``data`` with ``image`` applied, kept as :attr:`settings_file`."""
+        self = cls(path, arch)
+        self.settings_file = dataclasses.replace(data, **image)
+        return self
+
     def check(self, variants: list["Workload"] | None = None, *, reference_spp: int | None = None) -> str:
         """Refuse (one line) what a run of each of ``variants`` (itself with other settings, from
         :meth:`with_settings`; default: itself alone) would refuse later, before any kernel loads;
@@ -134,13 +147,18 @@ class Workload:
 
     def resolved(self) -> dict[str, Any]:
         """Everything the workload read, resolved (its own content, not only a digest): run.json's
-        ``workload`` (with :attr:`digest` added)."""
-        return {"kind": self.kind, "file": str(self.path)}
+        ``workload`` (with :attr:`digest` added): the kind, the file and its :attr:`settings_file`."""
+        settings = {} if self.settings_file is None else {"settings": dataclasses.asdict(self.settings_file)}
+        return {"kind": self.kind, "file": str(self.path), **settings}
 
     @property
     def digest(self) -> str:
-        """A hash of the inputs (the files read), as a scene's digest."""
-        return ""
+        """A hash of the inputs, as a scene's digest: of the :attr:`settings_file` as resolved (the file's
+        keys with what a command or a sweep point changed); empty for a kind without one."""
+        if self.settings_file is None:
+            return ""
+        text = json.dumps(dataclasses.asdict(self.settings_file), sort_keys=True, default=str)
+        return hashlib.sha256(text.encode()).hexdigest()
 
     def reference_scene(self):
         """The scene an accuracy reference renders (a sweep's metrics, ``compare --reference-spp``),

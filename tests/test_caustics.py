@@ -14,12 +14,8 @@
 * docs/caustics.md's example runs as written.
 """
 
-import contextlib
 import dataclasses
-import io
 import math
-import re
-from pathlib import Path
 
 import numba as nb
 import numpy as np
@@ -35,6 +31,7 @@ from pipeline_sim.targets import AppendBuffer
 from pipeline_sim.workload import load_workload
 from triangles import touches
 from workloads.apps.caustics import Caustics, Settings, make_beams, reference_photon_irradiance, water_surface
+from runs import run_doc_example
 
 WAVES = [{"amplitude": 0.012, "wavelength": 0.45, "direction": 20.0},
          {"amplitude": 0.006, "wavelength": 0.3, "direction": 110.0, "phase": 30.0}]
@@ -144,9 +141,5 @@ def test_bad_surfaces_are_refused_in_one_line(tmp_path, text, message):
 
 
 def test_the_doc_example_runs_as_written():
-    doc = Path(__file__).resolve().parent.parent / "docs" / "caustics.md"
-    (block,) = re.findall(r"```python\n(.*?)```", doc.read_text(), flags=re.S)
-    scope: dict = {"__name__": "caustics_example"}
-    with contextlib.redirect_stdout(io.StringIO()):
-        exec(compile(block, str(doc), "exec"), scope)
+    scope, _ = run_doc_example("caustics.md")
     assert scope["r"]["beams"] == 2 * 8 * 8

@@ -28,6 +28,7 @@ from pipeline_sim.config import load_arch
 from pipeline_sim.render import run_pass
 from units.rop import lens_resolve
 from workloads.apps.multiview import Layout, Multiview, Settings, reference_view_images, rmse
+from runs import refused_file
 
 ROOT = Path(__file__).resolve().parents[1]
 STEREO = dict(views=2, window=1.0, spacing=0.3)
@@ -161,11 +162,7 @@ def test_run_writes_every_view_side_by_side_and_anaglyph(tmp_path):
     ("view = 2", "did you mean 'views'"),
 ])
 def test_multiview_bad_input_is_one_line(tmp_path, capsys, text, message):
-    path = tmp_path / "bad.toml"
-    path.write_text('kind = "multiview"\n' + text + "\n")
-    assert main(["run", str(path), "--out", str(tmp_path / "o")]) == 2
-    err = capsys.readouterr().err.strip()
-    assert message in err and "Traceback" not in err and len(err.splitlines()) == 1
+    assert message in refused_file(tmp_path, capsys, "multiview", text)
 
 
 def test_docs_example_runs_as_written():

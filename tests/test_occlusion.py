@@ -25,6 +25,7 @@ from pipeline_sim.config import pass_settings
 from pipeline_sim.draw import draw_from_clip
 from pipeline_sim.errors import UserError
 from pipeline_sim.render import RenderPass, run_pass
+from runs import refused_file
 
 W, H = 16, 12
 
@@ -229,11 +230,7 @@ def test_occlusion_workload_end_to_end(tmp_path):
     ("time_slices = [64]\nlens_boxes = [4]", "at most 255"),
 ])
 def test_occlusion_workload_bad_input_is_one_line(tmp_path, capsys, text, message):
-    path = tmp_path / "bad.toml"
-    path.write_text('kind = "occlusion"\n' + text + "\n")
-    assert main(["run", str(path), "--out", str(tmp_path / "o")]) == 2
-    err = capsys.readouterr().err.strip()
-    assert message in err and "Traceback" not in err and len(err.splitlines()) == 1
+    assert message in refused_file(tmp_path, capsys, "occlusion", text)
 
 
 def test_cost_sweep_runs_a_tiny_version(root, tmp_path):

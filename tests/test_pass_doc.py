@@ -1,23 +1,14 @@
 """docs/passes.md's example runs as written and gives the parts it describes."""
 
-from __future__ import annotations
 
-import contextlib
-import io
-import re
-from pathlib import Path
 
 import numpy as np
+from runs import run_doc_example
 
-DOC = Path(__file__).resolve().parent.parent / "docs" / "passes.md"
 
 
 def test_the_pass_example_runs_as_written():
-    (block,) = re.findall(r"```python\n(.*?)```", DOC.read_text(), flags=re.S)
-    scope: dict = {"__name__": "passes_example"}
-    printed = io.StringIO()
-    with contextlib.redirect_stdout(printed):
-        exec(compile(block, str(DOC), "exec"), scope)
+    scope, printed = run_doc_example("passes.md")
     result = scope["result"]
     assert len(result.queries) == 2 and all(q > 0 for q in result.queries)
     # per-sample data of the "none" target, one image per lens view (tests/test_targets.py checks their values)
@@ -29,4 +20,4 @@ def test_the_pass_example_runs_as_written():
     records = result.append.records
     assert np.all((records[:, 0] >= 0) & (records[:, 0] < 64) & (records[:, 1] >= 0) & (records[:, 1] < 48))
     assert np.all((records[:, 4] >= 0) & (records[:, 4] <= 1)) and result.append.overflow == 0
-    assert "records appended" in printed.getvalue()
+    assert "records appended" in printed

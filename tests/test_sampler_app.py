@@ -15,6 +15,7 @@ from pipeline_sim.render import run_pass, run_passes
 from workloads.apps.sampling import (RECORD, Settings, append_shader, integrate_torus, prism_draw,
                                      reference_prism_volume, reference_torus, sampler_pass, slab_bounds,
                                      torus_slab_radii)
+from runs import run_doc_example
 
 ARCH = load_arch()
 W = H = 32
@@ -233,13 +234,8 @@ def test_the_doc_example_runs_as_written():
     import re
     from pathlib import Path
 
-    doc = Path(__file__).resolve().parent.parent / "docs" / "sampling-app.md"
-    (block,) = re.findall(r"```python\n(.*?)```", doc.read_text(), flags=re.S)
-    printed = io.StringIO()
-    scope: dict = {"__name__": "sampling_example"}
-    with contextlib.redirect_stdout(printed):
-        exec(compile(block, str(doc), "exec"), scope)
-    assert "samples appended" in printed.getvalue()
+    scope, printed = run_doc_example("sampling-app.md")
+    assert "samples appended" in printed
     assert set(scope["records"][:, RECORD.index("object")]) == {0.0, 1.0}
 
 

@@ -12,13 +12,9 @@
   and bad input.
 """
 
-from __future__ import annotations
 
-import contextlib
 import dataclasses
-import io
 import json
-import re
 from pathlib import Path
 
 import numpy as np
@@ -28,8 +24,8 @@ from pipeline_sim.cli import main
 from pipeline_sim.config import load_arch
 from pipeline_sim.render import run_passes
 from workloads.apps import shadows as S
+from runs import refused_file, run_doc_example
 
-DOC = Path(__file__).resolve().parent.parent / "docs" / "shadows.md"
 
 
 def five_d(s: S.Settings, per_sample: bool = False):
@@ -220,20 +216,12 @@ def test_penumbra_width_of_the_occluder_plane(light_size, occluder_height):
     ("", ["--spp", "4"], "--spp: a shadows workload takes one camera sample per tuple"),
 ])
 def test_bad_input_is_one_line(tmp_path, capsys, text, args, message):
-    path = tmp_path / "bad.toml"
-    path.write_text(f'kind = "shadows"\n{text}\n')
-    assert main(["check", str(path), *args]) == 2
-    err = capsys.readouterr().err.strip()
-    assert message in err and "\n" not in err and "Traceback" not in err
+    assert message in refused_file(tmp_path, capsys, "shadows", text, "check", *args)
 
 
 def test_the_documented_example_runs_as_written():
-    (block,) = re.findall(r"```python\n(.*?)```", DOC.read_text(), flags=re.S)
-    scope: dict = {"__name__": "shadows_example"}
-    printed = io.StringIO()
-    with contextlib.redirect_stdout(printed):
-        exec(compile(block, str(DOC), "exec"), scope)
-    assert "penumbra" in printed.getvalue()
+    scope, printed = run_doc_example("shadows.md")
+    assert "penumbra" in printed
     assert scope["measured"] == pytest.approx(scope["closed_form"], rel=0.05)
 
 

@@ -254,35 +254,38 @@ def _fresnel(params, px, py, pz):
 
 
 @nb.njit(cache=True)
-def reflection_shader(inputs, params, textures, out, append):
-    """Main pass over a glossy reflector (Nilsson12 §6): the standard shader, then on the surface its own
-    shading mixed with the reflection texture (``textures[0]``) by Schlick's Fresnel term."""
+def _surface_shader(inputs, params, textures, reflection, below, out, append, refracts):
+    """Main pass over the surface (Nilsson12 §6): the standard shader, then on the surface, by Schlick's
+    Fresnel term, the ``reflection`` texture over the refraction texture ``below`` when it ``refracts``, else
+    over its own shading."""
     standard_shader(inputs, params, textures, out, append)
     for i in range(inputs.shape[1]):
         if inputs[IN_OBJECT, i] != params[SURFACE_AT]:
             continue
         px, py, pz = inputs[IN_PX, i], inputs[IN_PY, i], inputs[IN_PZ, i]
         f = _fresnel(params, px, py, pz)
-        rgba = _texture_lookup(textures[0], params, TEXTURE_AT, px, py, pz)
-        for c in range(3):
-            out[i, c] = (1.0 - f) * out[i, c] + f * rgba[c]
+        reflected = _texture_lookup(reflection, params, TEXTURE_AT, px, py, pz)
+        if refracts:
+            refracted = _texture_lookup(below, params, TEXTURE_AT + TEXTURE_PARAMS, px, py, pz)
+            for c in range(3):
+                out[i, c] = f * reflected[c] + (1.0 - f) * refracted[c]
+        else:
+            for c in range(3):
+                out[i, c] = f * reflected[c] + (1.0 - f) * out[i, c]
+
+
+@nb.njit(cache=True)
+def reflection_shader(inputs, params, textures, out, append):
+    """A glossy reflector: its own shading under the reflection texture ``textures[0]``
+    (:func:`_surface_shader`)."""
+    _surface_shader(inputs, params, textures, textures[0], textures[0], out, append, False)
 
 
 @nb.njit(cache=True)
 def refraction_shader(inputs, params, textures, out, append):
-    """Main pass over a rough transparent surface (Nilsson12 §6): the standard shader, then on the surface
-    the reflection texture (``textures[0]``) over the refraction texture (``textures[1]``) by Schlick's
-    Fresnel term."""
-    standard_shader(inputs, params, textures, out, append)
-    for i in range(inputs.shape[1]):
-        if inputs[IN_OBJECT, i] != params[SURFACE_AT]:
-            continue
-        px, py, pz = inputs[IN_PX, i], inputs[IN_PY, i], inputs[IN_PZ, i]
-        f = _fresnel(params, px, py, pz)
-        reflected = _texture_lookup(textures[0], params, TEXTURE_AT, px, py, pz)
-        refracted = _texture_lookup(textures[1], params, TEXTURE_AT + TEXTURE_PARAMS, px, py, pz)
-        for c in range(3):
-            out[i, c] = f * reflected[c] + (1.0 - f) * refracted[c]
+    """A rough transparent surface: the reflection texture ``textures[0]`` over the refraction texture
+    ``textures[1]`` (:func:`_surface_shader`)."""
+    _surface_shader(inputs, params, textures, textures[0], textures[1], out, append, True)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -454,9 +457,7 @@ class Glossy(Workload):
 
     @classmethod
     def load(cls, path, data: Settings, arch, image: dict[str, int]) -> "Glossy":
-        self = cls(path, arch)
-        self.settings_file = data
-        self.text = self.path.read_bytes()
+        self = cls.from_settings(path, data, arch, {})
         scene = load_scene(self.path.parent / data.scene)
         self.scene = scene.replace(image=dataclasses.replace(scene.image, **image))
         return self
@@ -576,15 +577,14 @@ class Glossy(Workload):
 
     def resolved(self) -> dict:
         _, _, cams = self.cameras()
-        return {**super().resolved(), "settings": dataclasses.asdict(self.settings_file),
-                "scene": str(self.scene.path), "image": dataclasses.asdict(self.scene.image),
+        return {**super().resolved(), "scene": str(self.scene.path), "image": dataclasses.asdict(self.scene.image),
                 "cameras": {n: {"eye": c.eye.tolist(), "forward": c.forward.tolist(), "window": list(c.window),
                                 "distance": c.distance, "radius": c.radius, "far": c.far, "size": list(c.size)}
                             for n, c in cams.items()}}
 
     @property
     def digest(self) -> str:
-        return hashlib.sha256(self.text + self.scene.digest.encode()).hexdigest()
+        return hashlib.sha256((super().digest + self.scene.digest).encode()).hexdigest()
 
 
 def _finite(value):

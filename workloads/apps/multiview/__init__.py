@@ -19,8 +19,6 @@ over one view, and each view's error against a ray-cast reference from its own c
 
 from __future__ import annotations
 
-import dataclasses
-import hashlib
 from dataclasses import dataclass
 from typing import Annotated
 
@@ -299,13 +297,10 @@ class Multiview(Workload):
 
     @classmethod
     def load(cls, path, data: Settings, arch, image: dict[str, int]) -> "Multiview":
-        self = cls(path, arch)
         if "spp" in image:
             raise UserError(f"{path}: --spp: a multiview file sets samples_per_view (its pass's spp follows "
                             "from it and the views)")
-        self.settings_file = dataclasses.replace(data, **image)
-        self.text = self.path.read_bytes()
-        return self
+        return cls.from_settings(path, data, arch, image)
 
     def layout(self, views: int | None = None) -> Layout:
         s = self.settings_file
@@ -409,12 +404,7 @@ class Multiview(Workload):
 
     def resolved(self) -> dict:
         layout = self.layout()
-        return {**super().resolved(), "settings": dataclasses.asdict(self.settings_file),
-                "spp": layout.spp, "half_width": layout.half_width, "windows": [list(w) for w in layout.windows()]}
-
-    @property
-    def digest(self) -> str:
-        return hashlib.sha256(self.text).hexdigest()
+        return {**super().resolved(), "spp": layout.spp, "half_width": layout.half_width, "windows": [list(w) for w in layout.windows()]}
 
 
 WORKLOAD = Multiview

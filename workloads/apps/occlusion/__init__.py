@@ -17,7 +17,6 @@ occluded proxies (sample-based count 0) the interval method answers "occluded".
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 from dataclasses import dataclass
 from typing import Annotated
 
@@ -125,10 +124,7 @@ class Occlusion(Workload):
 
     @classmethod
     def load(cls, path, data: Settings, arch, image: dict[str, int]) -> "Occlusion":
-        self = cls(path, arch)
-        self.settings_file = dataclasses.replace(data, **image)
-        self.text = self.path.read_bytes()
-        return self
+        return cls.from_settings(path, data, arch, image)
 
     def configurations(self) -> list[tuple[int, int, int]]:
         """The (tile size, time slices, lens boxes) of the occlusion-rate table, the architecture's own
@@ -213,12 +209,7 @@ class Occlusion(Workload):
         }, tables={"occlusion_rate": table})
 
     def resolved(self) -> dict:
-        return {**super().resolved(), "settings": dataclasses.asdict(self.settings_file),
-                "configurations": [list(c) for c in self.configurations()]}
-
-    @property
-    def digest(self) -> str:
-        return hashlib.sha256(self.text).hexdigest()
+        return {**super().resolved(), "configurations": [list(c) for c in self.configurations()]}
 
 
 WORKLOAD = Occlusion

@@ -26,8 +26,6 @@ Three methods, one per file of this kind:
 
 from __future__ import annotations
 
-import dataclasses
-import hashlib
 import math
 import time
 from dataclasses import dataclass
@@ -642,10 +640,7 @@ class Sampling(Workload):
         if other:
             raise UserError(f"{path}: a sampling workload takes no image setting {', '.join(other)}; set its "
                             "resolution in the file")
-        self = cls(path, arch)
-        self.settings_file = dataclasses.replace(data, **image)
-        self.text = self.path.read_bytes()
-        return self
+        return cls.from_settings(path, data, arch, image)
 
     def check(self, variants=None, *, reference_spp=None) -> str:
         from pipeline_sim.sampling import check_spp
@@ -694,12 +689,6 @@ class Sampling(Workload):
         return WorkloadResult(passes, results=strict(results),
                               arrays={"points": pts, "density": rho}, figures={"points": fig})
 
-    def resolved(self) -> dict:
-        return {**super().resolved(), "settings": dataclasses.asdict(self.settings_file)}
-
-    @property
-    def digest(self) -> str:
-        return hashlib.sha256(self.text).hexdigest()
 
 
 WORKLOAD = Sampling

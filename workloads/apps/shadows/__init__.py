@@ -22,7 +22,6 @@ file's ``study_tuples`` x ``study_shadow_maps``.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 from dataclasses import dataclass
 from typing import Annotated, Literal
 
@@ -480,13 +479,10 @@ class Shadows(Workload):
 
     @classmethod
     def load(cls, path, data: Settings, arch, image: dict[str, int]) -> "Shadows":
-        self = cls(path, arch)
         if "spp" in image:
             raise UserError(f"{path}: --spp: a shadows workload takes one camera sample per tuple; set "
                             "`tuples` instead")
-        self.settings_file = dataclasses.replace(data, **image)
-        self.text = self.path.read_bytes()
-        return self
+        return cls.from_settings(path, data, arch, image)
 
     def check(self, variants=None, *, reference_spp=None) -> str:
         for v in variants or [self]:
@@ -561,12 +557,6 @@ class Shadows(Workload):
         tables = {"study": pd.DataFrame(rows)} if rows else {}
         return WorkloadResult(results, results=out, tables=tables)
 
-    def resolved(self) -> dict:
-        return {**super().resolved(), "settings": dataclasses.asdict(self.settings_file)}
-
-    @property
-    def digest(self) -> str:
-        return hashlib.sha256(self.text).hexdigest()
 
 
 def measured_penumbra(s: Settings, vis: np.ndarray) -> float:
