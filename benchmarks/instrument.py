@@ -151,24 +151,43 @@ def simpy_only(script: Script) -> tuple[float, float, float]:
 
 
 class Timers:
-    """Accumulated wall (perf_counter) and CPU (process_time) seconds and calls per key."""
+    """Accumulated wall (perf_counter) and CPU (process_time) seconds and calls per key; ``self_seconds`` and
+    ``self_cpu`` leave out the timed calls made inside (a screen region's samples made or resolved within a
+    stage's step), except those of :data:`TRANSPARENT` keys, which their caller's time keeps."""
 
     def __init__(self):
         self.seconds: dict[str, float] = defaultdict(float)
         self.cpu: dict[str, float] = defaultdict(float)
         self.calls: dict[str, int] = defaultdict(int)
+        self.self_seconds: dict[str, float] = defaultdict(float)
+        self.self_cpu: dict[str, float] = defaultdict(float)
+        self.stack: list[list[float]] = []  # per open timed call: its timed children's wall and CPU
+
+
+#: Keys timed inside a unit's run whose time stays that unit's (the tester's kernel).
+TRANSPARENT = ("sample_test_kernel",)
 
 
 def _timed(fn, timers: Timers, key: str):
     def wrapper(*a, **k):
+        children = [0.0, 0.0]
+        timers.stack.append(children)
         t0 = time.perf_counter()
         c0 = time.process_time()
         try:
             return fn(*a, **k)
         finally:
-            timers.cpu[key] += time.process_time() - c0
-            timers.seconds[key] += time.perf_counter() - t0
+            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+            timers.stack.pop()
+            timers.cpu[key] += cpu
+            timers.seconds[key] += wall
             timers.calls[key] += 1
+            if key not in TRANSPARENT:
+                timers.self_seconds[key] += wall - children[0]
+                timers.self_cpu[key] += cpu - children[1]
+                if timers.stack:
+                    timers.stack[-1][0] += wall
+                    timers.stack[-1][1] += cpu
     return wrapper
 
 

@@ -127,8 +127,16 @@ unless said otherwise:
    time to equal error, project over peer, timed alternately in one run.
    Writes ``convergence.csv``.
 
+12. ("per_sample" section) Cost per sample: the default scene at 256 spp,
+   instrumented as in 2, in nanoseconds per sample end to end and per part
+   (sample generation, tile test, z-cull, tester, shading, ROP, the cost
+   model in the steps, the SimPy layer, the rest), and the tester's
+   nanoseconds per tested sample including its outputs. Writes
+   ``per_sample.csv``.
+
 ``--only SECTION[,SECTION]`` runs some sections only (default, tester,
-scaling, compile, specialization, batch, frame, patterns, ab, convergence; "default" is 0-2);
+scaling, compile, specialization, batch, frame, patterns, ab, convergence,
+per_sample; "default" is 0-2);
 ``--frame-triangles N[,N]`` changes the frame section's sizes.
 """
 
@@ -170,6 +178,7 @@ FULL = {
     "ab_rounds": 5, "ab_runs": 5,
     "convergence": {"width": 160, "height": 90, "spp": [16, 32, 64, 128, 256, 512, 1024], "ref_spp": 8192,
                     "peer_max_passes": 1024, "peer_rounds": 3},
+    "per_sample": {"spp": 256},
 }
 QUICK = {
     "pairs": 3, "instrumented": 1, "simpy_only": 3, "micro_repeats": 5, "scaling_repeats": 1,
@@ -185,10 +194,11 @@ QUICK = {
     "ab_rounds": 2, "ab_runs": 3,
     "convergence": {"width": 64, "height": 36, "spp": [16, 64, 256], "ref_spp": 2048, "peer_max_passes": 512,
                     "peer_rounds": 1},
+    "per_sample": {"spp": 64},
 }
 # sections in the order they run; --only picks some
 SECTIONS = ("default", "tester", "scaling", "compile", "specialization", "batch", "frame", "patterns", "ab",
-            "convergence")
+            "convergence", "per_sample")
 
 
 def log(msg: str) -> None:
@@ -348,41 +358,8 @@ def bench_default(cfg: dict) -> dict:
 
     # per-unit wall time (SimPy pipeline with every unit's run wrapped)
     log(f"default workload: {cfg['instrumented']} instrumented runs")
-    runs = []
-    for _ in range(cfg["instrumented"]):
-        timers = ins.Timers()
-        with ins.unit_timers(timers):
-            c0 = _clocks()
-            r = run_pass(p)
-            total, total_cpu = _since(c0)
-        runs.append((total, total_cpu, timers))
-    calls = runs[-1][2].calls
-    unit_names = list(ins.UNIT_CLASSES)
-
-    def parts(secs: dict, total: float, simpy: float) -> dict:
-        d = {name: secs.get(name, 0.0) for name in unit_names}
-        d["sample generation"] = secs.get("make_samples", 0.0)
-        d["resolve"] = secs.get("resolve", 0.0)
-        d["counters and cost model in the steps"] = (sum(secs.get("step:" + n, 0.0) for n in unit_names)
-                                                     - sum(secs.get(n, 0.0) for n in unit_names))
-        d["SimPy layer (timed alone)"] = simpy
-        d["other (unit set-up, counters table, ...)"] = total - sum(d.values())
-        return d
-
-    wall_parts = [parts(tm.seconds, tot, out["simpy_only_median_s"]) for tot, _, tm in runs]
-    cpu_parts = [parts(tm.cpu, tot, out["simpy_only_cpu_median_s"]) for _, tot, tm in runs]
-    total = float(np.median([r_[0] for r_ in runs]))
-    total_cpu = float(np.median([r_[1] for r_ in runs]))
-    call_keys = {"sample generation": "make_samples", "resolve": "resolve"}
-    units = []
-    for key in wall_parts[0]:
-        w = float(np.median([d[key] for d in wall_parts]))
-        cp = float(np.median([d[key] for d in cpu_parts]))
-        units.append({"part": key, "seconds": w, "share": w / total, "cpu_seconds": cp, "cpu_share": cp / total_cpu,
-                      "calls": calls.get(call_keys.get(key, key), 0)})
-    out["instrumented_total_s"] = total
-    out["instrumented_total_cpu_s"] = total_cpu
-    out["units"] = units
+    runs, r = instrumented_runs(p, cfg["instrumented"])
+    out.update(unit_breakdown(runs, out["simpy_only_median_s"], out["simpy_only_cpu_median_s"]))
 
     # 1. sample tests per second: pipeline vs bare micro-kernel on the same number of tests
     st_tested = r.counter("sample_tester", "samples_tested")
@@ -404,6 +381,83 @@ def bench_default(cfg: dict) -> dict:
     out["micro_over_pipeline"] = micro["tests_per_s"] / out["tester_rate"]
     out["micro_over_pipeline_kernel"] = micro["tests_per_s"] / out["tester_kernel_rate"]
     out["micro_over_pipeline_cpu"] = micro["tests_per_cpu_s"] / out["tester_rate_cpu"]
+    return out
+
+
+def instrumented_runs(p, repeats: int) -> tuple[list, object]:
+    """``repeats`` SimPy runs of pass ``p`` with every unit's run timed: [(wall, CPU, timers)] and the last result."""
+    from benchmarks import instrument as ins
+    from pipeline_sim.render import run_pass
+
+    runs = []
+    for _ in range(repeats):
+        timers = ins.Timers()
+        with ins.unit_timers(timers):
+            c0 = _clocks()
+            r = run_pass(p)
+            total, total_cpu = _since(c0)
+        runs.append((total, total_cpu, timers))
+    return runs, r
+
+
+def unit_breakdown(runs: list, simpy_s: float, simpy_cpu_s: float) -> dict:
+    """Where instrumented runs' time goes, part by part (medians; the SimPy layer as timed alone):
+    ``instrumented_total_s``, ``instrumented_total_cpu_s`` and ``units`` (part, seconds, share, CPU, calls)."""
+    from benchmarks import instrument as ins
+
+    calls = runs[-1][2].calls
+    unit_names = list(ins.UNIT_CLASSES)
+
+    def parts(secs: dict, total: float, simpy: float) -> dict:
+        """Each part's own time (``secs``: a run's self times, nested timed calls left out)."""
+        d = {name: secs.get(name, 0.0) for name in unit_names}
+        d["sample generation"] = secs.get("make_samples", 0.0)
+        d["resolve"] = secs.get("resolve", 0.0)
+        d["counters and cost model in the steps"] = sum(secs.get("step:" + n, 0.0) for n in unit_names)
+        d["SimPy layer (timed alone)"] = simpy
+        d["other (unit set-up, counters table, ...)"] = total - sum(d.values())
+        return d
+
+    wall_parts = [parts(tm.self_seconds, tot, simpy_s) for tot, _, tm in runs]
+    cpu_parts = [parts(tm.self_cpu, tot, simpy_cpu_s) for _, tot, tm in runs]
+    total = float(np.median([r_[0] for r_ in runs]))
+    total_cpu = float(np.median([r_[1] for r_ in runs]))
+    call_keys = {"sample generation": "make_samples", "resolve": "resolve"}
+    units = []
+    for key in wall_parts[0]:
+        w = float(np.median([d[key] for d in wall_parts]))
+        cp = float(np.median([d[key] for d in cpu_parts]))
+        units.append({"part": key, "seconds": w, "share": w / total, "cpu_seconds": cp, "cpu_share": cp / total_cpu,
+                      "calls": calls.get(call_keys.get(key, key), 0)})
+    return {"instrumented_total_s": total, "instrumented_total_cpu_s": total_cpu, "units": units}
+
+
+def bench_per_sample(cfg: dict) -> dict:
+    """Nanoseconds per sample end to end on the default scene at ``cfg["per_sample"]["spp"]``, split by part
+    (issue 19's cost per sample), and the tester's nanoseconds per tested sample including its outputs."""
+    from benchmarks import instrument as ins
+    from benchmarks.workloads import default_pass
+    from pipeline_sim.render import run_pass
+
+    spp = cfg["per_sample"]["spp"]
+    p = default_pass(spp=spp)
+    samples = p.draw.width * p.draw.height * spp
+    log(f"per sample: the default scene at {spp} spp, recording run")
+    script = ins.Script()
+    with ins.recording(script):
+        run_pass(p)
+    simpy = [ins.simpy_only(script)[:2] for _ in range(cfg["simpy_only"])]
+    log(f"per sample: {cfg['instrumented']} instrumented runs")
+    runs, r = instrumented_runs(p, cfg["instrumented"])
+    out = {"spp": spp, "width": p.draw.width, "height": p.draw.height, "samples": samples,
+           "samples_tested": r.counter("sample_tester", "samples_tested"),
+           **unit_breakdown(runs, float(np.median([w for w, _ in simpy])), float(np.median([c for _, c in simpy])))}
+    out["ns_per_sample"] = 1e9 * out["instrumented_total_s"] / samples
+    out["ns_per_sample_cpu"] = 1e9 * out["instrumented_total_cpu_s"] / samples
+    for u in out["units"]:
+        u["ns_per_sample"] = 1e9 * u["seconds"] / samples
+    tester = float(np.median([tm.seconds["sample_tester"] for _, _, tm in runs]))
+    out["tester_ns_per_tested_sample"] = 1e9 * tester / max(1, out["samples_tested"])
     return out
 
 
@@ -696,6 +750,24 @@ def report(results: dict) -> tuple[str, list[dict]]:
         if key in results:
             out.extend(mod.report(results[key], table, add))
             out.append("")
+    if "per_sample" in results:
+        ps = results["per_sample"]
+        out.append(f"12. Cost per sample: the default scene at {ps['width']}x{ps['height']}, {ps['spp']} spp "
+                   f"({ps['samples']:,} samples; median of {results['config']['instrumented']} instrumented runs; "
+                   f"issue 19 goal: under 50 ns a sample)")
+        out.append(f"   {ps['ns_per_sample']:.1f} ns a sample wall ({ps['ns_per_sample_cpu']:.1f} CPU), "
+                   f"{ps['instrumented_total_s']:.2f} s a pass; the tester "
+                   f"{ps['tester_ns_per_tested_sample']:.2f} ns per tested sample including its outputs "
+                   f"({ps['samples_tested']:,} tested)")
+        out.append(table([(u["part"], f"{u['ns_per_sample']:.2f}", f"{100 * u['share']:.1f} %") for u in ps["units"]],
+                         ("part", "ns / sample", "share")))
+        out.append("")
+        add("per_sample", "ns_per_sample", ps["ns_per_sample"], "ns", f"default scene, {ps['spp']} spp, wall")
+        add("per_sample", "ns_per_sample_cpu", ps["ns_per_sample_cpu"], "ns", "CPU")
+        add("per_sample", "tester_ns_per_tested_sample", ps["tester_ns_per_tested_sample"], "ns",
+            "the sample tester's run, outputs included")
+        for u in ps["units"]:
+            add("per_sample", f"ns_per_sample@{u['part']}", u["ns_per_sample"], "ns")
     out.append(f"total benchmark time {results['elapsed_s']:.0f} s"
                + (f" (sections: {', '.join(results['sections'])})" if results["sections"] != list(SECTIONS) else ""))
     return "\n".join(out), rows_csv
@@ -778,6 +850,8 @@ def main(argv: list[str] | None = None) -> int:
     if "convergence" in sections:
         from benchmarks import convergence
         results["convergence"] = convergence.bench(cfg, log)
+    if "per_sample" in sections:
+        results["per_sample"] = bench_per_sample(cfg)
     results["machine"]["load_average_end"] = os.getloadavg()
     results["source_digest_end"] = source_digest()
     results["elapsed_s"] = time.perf_counter() - start
@@ -796,6 +870,13 @@ def main(argv: list[str] | None = None) -> int:
             w.writeheader()
             w.writerows(results["default"]["units"])
         written.append("units.csv")
+    if "per_sample" in results:
+        with open(outdir / "per_sample.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=["part", "seconds", "share", "cpu_seconds", "cpu_share", "calls",
+                                              "ns_per_sample"])
+            w.writeheader()
+            w.writerows(results["per_sample"]["units"])
+        written.append("per_sample.csv")
     if "scaling" in results:
         with open(outdir / "scaling.csv", "w", newline="") as f:
             fields = ["sweep", "x", "kind", "n", "triangles", "width", "height", "spp", "repeats", "median_s",
