@@ -174,6 +174,23 @@ def _files(result) -> dict[str, list[str]]:
     return {key: names for key, names in files.items() if names}
 
 
+def write_derived(folder: Path, result) -> None:
+    """What a workload derived from its passes, into ``folder``: ``results.json``, one CSV per table, one .npy
+    per array, one PNG per figure and ``images/`` (a run folder's and a sweep point's)."""
+    for name, table in result.tables.items():
+        table.to_csv(folder / f"{file_name(name, 'table')}.csv", index=False)
+    for name, array in result.arrays.items():
+        np.save(folder / f"{file_name(name, 'array')}.npy", array)
+    for name, figure in result.figures.items():
+        figure.savefig(folder / f"{file_name(name, 'figure')}.png", dpi=100)
+    for name, image in result.images.items():
+        (folder / "images").mkdir(exist_ok=True)
+        stem = file_name(name, "image")
+        np.save(folder / "images" / f"{stem}.npy", image)
+        write_png(folder / "images" / f"{stem}.png", image)
+    write_json(folder / "results.json", result.results)
+
+
 def write_run(folder: Path, workload, result, info: dict[str, Any]) -> dict[str, Any]:
     """A workload's run folder (docs/outputs.md) into ``folder`` (an output folder's staging):
     ``passes/<pass>/`` for every pass, ``results.json``, one CSV per table, one .npy per array, one PNG
@@ -187,18 +204,7 @@ def write_run(folder: Path, workload, result, info: dict[str, Any]) -> dict[str,
     for name, r in result.passes.items():
         write_pass(folder / "passes" / file_name(name, "pass"), r)
         passes.append(pass_record(states[name], r, arch))
-    for name, table in result.tables.items():
-        table.to_csv(folder / f"{file_name(name, 'table')}.csv", index=False)
-    for name, array in result.arrays.items():
-        np.save(folder / f"{file_name(name, 'array')}.npy", array)
-    for name, figure in result.figures.items():
-        figure.savefig(folder / f"{file_name(name, 'figure')}.png", dpi=100)
-    for name, image in result.images.items():
-        (folder / "images").mkdir(exist_ok=True)
-        stem = file_name(name, "image")
-        np.save(folder / "images" / f"{stem}.npy", image)
-        write_png(folder / "images" / f"{stem}.png", image)
-    write_json(folder / "results.json", result.results)
+    write_derived(folder, result)
     total = result.total()
     run_info = {"kind": workload.kind, "workload": {**workload.resolved(), "digest": workload.digest},
                 "arch": arch, "passes": passes, "results": sorted(result.results),

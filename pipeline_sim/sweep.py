@@ -565,7 +565,7 @@ def _run_point(spec: dict[str, Any], params: dict[str, Any], out: Path,
     from pipeline_sim.cli import _package_versions
     from pipeline_sim.config import load_arch
     from pipeline_sim.jit import warm_up
-    from pipeline_sim.output import file_name, finite_or_none, write_json, write_pass, write_png
+    from pipeline_sim.output import file_name, finite_or_none, write_derived, write_json, write_pass, write_png
     from pipeline_sim.workload import load_workload
 
     compile_s = warm_up()
@@ -640,12 +640,10 @@ def _run_point(spec: dict[str, Any], params: dict[str, Any], out: Path,
         result.timing.queues.to_csv(tmp / "queues.csv", index=False)
         (tmp / "trace.json").write_text(_json_text(trace, indent=None))
         write_json(tmp / "run.json", info)
-        if len(run.passes) > 1 or run.results or run.tables:  # a workload of several passes or with results
-            for name, r in run.passes.items():
+        if len(run.passes) > 1 or run.results or run.tables or run.arrays or run.figures or run.images:
+            for name, r in run.passes.items():  # a workload of several passes or with derived results
                 write_pass(tmp / "passes" / file_name(name, "pass"), r)
-            write_json(tmp / "results.json", run.results)
-            for name, table in run.tables.items():
-                table.to_csv(tmp / f"{file_name(name, 'table')}.csv", index=False)
+            write_derived(tmp, run)
         folder.commit()
     c = result.counters
     counters = [[str(u), str(n), int(v)] for u, n, v in zip(c.unit, c.counter, c.value)]

@@ -427,3 +427,15 @@ def test_a_listed_result_the_workload_lacks_fails_the_point(tmp_path):
     frame = run_sweep(load_sweep(sweep), tmp_path / "out", executor="serial", progress=False)
     assert list(frame.status) == ["error"]
     assert "results.json has no figure pcs_size (it has: proxies," in frame.error[0]
+
+
+def test_a_point_keeps_the_workloads_derived_images(tmp_path):
+    """A collision point writes its Fig. 6 overlap images as a run does (written by the same code)."""
+    scene = ROOT / "workloads" / "apps" / "collision" / "collide.toml"
+    (tmp_path / "sweep.toml").write_text(f'[sweep]\nscene = "{scene}"\n[grid]\n"workload.resolution" = [8]\n')
+    frame = run_sweep(load_sweep(tmp_path / "sweep.toml"), tmp_path / "out", executor="serial", progress=False)
+    assert list(frame.status) == ["ok"], frame.error.tolist()
+    point = tmp_path / "out" / "points" / frame.point_id[0]
+    images = sorted(p.name for p in (point / "images").iterdir())
+    assert images and all(name.startswith("ball-box.") for name in images), images
+    assert {"results.json", "passes"} <= {p.name for p in point.iterdir()}
