@@ -126,11 +126,35 @@ def test_moving_triangles_shade_fewer_pixels_than_the_prism(wavy):
     assert heat["exact"].sum() == ex["exact"] == wavy.passes["eye.light"].counter("shading", "shader_executions")
 
 
+def test_the_prism_count_bounds_every_beam():
+    """The solid the prism method counts (the six prism vertices and the end triangle) holds every point of
+    every beam (dense sections (1 - t) p + t q at random barycentrics), checked by a Delaunay point location
+    apart from the plane construction; its bottom vertices lie on the floor."""
+    from scipy.spatial import Delaunay
+
+    from workloads.apps.caustics import prism_vertices
+
+    w = workload(cells=4, resolution=24, waves=[{"amplitude": 0.03, "wavelength": 0.7, "direction": 30.0}])
+    beams = make_beams(w.data, water_surface(w.data))
+    prism = prism_vertices(beams.p, beams.q)
+    rng = np.random.default_rng(5)
+    lam = rng.dirichlet([1.0, 1.0, 1.0], 200)
+    t = rng.uniform(0.0, 1.0, 200)[:, None]
+    for b in range(len(beams.p)):
+        solid = Delaunay(np.concatenate([prism[b], beams.q[b]]))
+        points = (1.0 - t) * (lam @ beams.p[b]) + t * (lam @ beams.q[b])
+        inside = solid.find_simplex(points, tol=1e-9) >= 0
+        assert inside.all(), f"beam {b}: {points[~inside][:3]}"
+    assert np.allclose(np.sort(prism[..., 2], axis=1)[:, :3], 0.0, atol=1e-12)
+
+
 @pytest.mark.parametrize("text, message", [
     ("light = [0.1, 0.0, 0.5]", "light: the light must point down"),
     ("[[waves]]\namplitude = 0.05\nwavelength = 0.05", "waves: too steep for the light"),
     ("depth = 0.01\n[[waves]]\namplitude = 0.02\nwavelength = 1.0", "waves: their amplitudes"),
     ("eye = [0.5, 0.5, 0.2]\nlook_at = [0.5, 1.5, 0.2]", "eye: the eye view's camera must see the whole pool"),
+    ("eye = [0.5, 0.5, 2.0]\nlook_at = [0.5, 0.5, 0.0]", "look_at: the eye view must not look straight up or down"),
+    ("eye = [0.5, 0.5, 2.0]\nlook_at = [0.5, 0.5, 2.0]", "look_at: the eye view must not look straight up or down"),
 ])
 def test_bad_surfaces_are_refused_in_one_line(tmp_path, text, message):
     path = tmp_path / "bad.toml"

@@ -16,8 +16,10 @@ axes: a vertex of one in the other, or an edge of the triangle crossing a side o
 import numba as nb
 import numpy as np
 from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from pipeline_sim.config import load_arch
+from pipeline_sim.definitions import N_OPS
 from pipeline_sim.draw import draw_from_clip
 from pipeline_sim.pass_state import PassState
 from pipeline_sim.render import RenderPass, run_pass
@@ -25,6 +27,7 @@ from pipeline_sim.shaders import IN_T_HI, IN_T_LO, IN_X, IN_Y, append_record
 from pipeline_sim.targets import AppendBuffer
 from triangles import moving_triangle, touches
 from units.tile_test import TileTest
+from units.tile_test_exact import exact_time_interval
 from units.tile_traverser import TileTraverser
 from units.triangle_setup import TriangleSetup
 
@@ -70,6 +73,37 @@ def test_exact_intervals_hold_every_contact_and_end_in_contact(tri):
         ends = screen(q, r, np.array([lo, hi]))
         assert touches(ends, int(x), int(y), grow=1e-5).all(), (x, y, lo, hi)
     assert len(exact["tri"]) <= len(tile["tri"])
+
+
+def _cross(u, v):
+    return u[0] * v[1] - u[1] * v[0]
+
+
+@settings(max_examples=300, deadline=None)
+@given(ts=st.floats(0.1, 0.9), angle=st.floats(0.0, np.pi), reach=st.tuples(st.floats(0.3, 2.0), st.floats(0.3, 2.0)),
+       va=st.tuples(st.floats(-1, 1), st.floats(-1, 1)), vb=st.tuples(st.floats(-1, 1), st.floats(-1, 1)),
+       vc=st.tuples(st.floats(-1, 1), st.floats(-1, 1)), height=st.floats(1.0, 3.0))
+def test_a_corner_grazing_a_moving_edge_keeps_its_instant(ts, angle, reach, va, vb, vc, height):
+    """An edge whose line turns through the pixel corner (5, 5) and back, touching the closed pixel at
+    the one instant ``ts`` (a double root of the corner's edge function, Gribel10 eq. 4): the exact
+    interval holds ``ts``, however rounding leaves the discriminant."""
+    c = np.array([5.0, 5.0])
+    d = np.array([np.cos(angle), np.sin(angle)])
+    normal = np.array([-d[1], d[0]])
+    a_ts, b_ts = c - reach[0] * d, c + reach[1] * d  # the corner on the edge at ts
+    va, vb, vc = np.array(va), np.array(vb), np.array(vc)
+    # make the edge function's derivative at ts zero (a tangency), moving vb along the edge normal
+    rest = _cross(vb - va, c - a_ts) + _cross(b_ts - a_ts, -va)
+    vb = vb - rest / _cross(normal, c - a_ts) * normal
+    side = np.sign(_cross(b_ts - a_ts, c + 0.5 - a_ts))
+    c_ts = 0.5 * (a_ts + b_ts) - side * normal * height  # the third vertex away from the pixel
+    p0 = np.zeros((1, 3, 4))
+    dp = np.zeros((1, 3, 4))
+    for k, (at_ts, v) in enumerate(((a_ts, va), (b_ts, vb), (c_ts, vc))):
+        p0[0, k, :2], p0[0, k, 3], dp[0, k, :2] = at_ts - ts * v, 1.0, v
+    ops = np.zeros(N_OPS, np.int64)
+    lo, hi = exact_time_interval(p0, dp, 0, 5.0, 6.0, 5.0, 6.0, 0.0, 1.0, ops)
+    assert lo <= ts + 1e-9 and hi >= ts - 1e-9, (lo, hi, ts)
 
 
 def test_translating_triangle_enters_and_leaves_at_hand_computed_times():

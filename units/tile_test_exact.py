@@ -41,12 +41,13 @@ MAX_ROOTS = 12 + 2 * 12  # 12 linear contacts, 12 quadratic ones
 @nb.njit(cache=True)
 def _touches(p0, dp, tri, t, x0, x1, y0, y1, ops):
     """Whether the triangle at time ``t`` meets the square [x0, x1] x [y0, y1] (separating axes)."""
-    xs = np.empty(3)
-    ys = np.empty(3)
-    for k in range(3):
-        w = p0[tri, k, 3] + t * dp[tri, k, 3]
-        xs[k] = (p0[tri, k, 0] + t * dp[tri, k, 0]) / w
-        ys[k] = (p0[tri, k, 1] + t * dp[tri, k, 1]) / w
+    w0 = p0[tri, 0, 3] + t * dp[tri, 0, 3]
+    w1 = p0[tri, 1, 3] + t * dp[tri, 1, 3]
+    w2 = p0[tri, 2, 3] + t * dp[tri, 2, 3]
+    xs = ((p0[tri, 0, 0] + t * dp[tri, 0, 0]) / w0, (p0[tri, 1, 0] + t * dp[tri, 1, 0]) / w1,
+          (p0[tri, 2, 0] + t * dp[tri, 2, 0]) / w2)
+    ys = ((p0[tri, 0, 1] + t * dp[tri, 0, 1]) / w0, (p0[tri, 1, 1] + t * dp[tri, 1, 1]) / w1,
+          (p0[tri, 2, 1] + t * dp[tri, 2, 1]) / w2)
     ops[OP_MADD] += 9
     ops[OP_RCP] += 3
     ops[OP_MUL] += 6
@@ -96,7 +97,10 @@ def _quadratic_roots(a, b, c, roots, n, lo, hi, ops):
         return n
     disc = b * b - 4.0 * a * c
     if disc < 0.0:
-        return n
+        # a corner grazing a moving edge line touches it at a double root, which rounding can turn into
+        # a slightly negative discriminant: the parabola's vertex is then the time to look at
+        ops[OP_RCP] += 1
+        return _add_root(roots, n, -0.5 * b / a, lo, hi)
     ops[OP_RCP] += 3
     q = -0.5 * (b + math.copysign(math.sqrt(disc), b))
     n = _add_root(roots, n, q / a, lo, hi)

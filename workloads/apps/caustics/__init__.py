@@ -228,8 +228,12 @@ def check_beams(s: Settings, beams: Beams, where: str) -> None:
     finite irradiance), or a vertex not in front of the eye view's camera."""
     if not np.all(np.isfinite(beams.irradiance)):
         raise UserError(f"{where}: waves: a beam focuses to a line or a point on the floor (infinite irradiance)")
+    forward = np.asarray(s.look_at, float) - np.asarray(s.eye, float)
+    if np.linalg.norm(np.cross(forward, [0.0, 0.0, 1.0])) <= 1e-9 * max(1.0, float(np.linalg.norm(forward))):
+        raise UserError(f"{where}: look_at: the eye view must not look straight up or down (its up axis is +z), "
+                        f"got eye {list(s.eye)} and look_at {list(s.look_at)}")
     cam, w, h = view_camera(s, "eye")
-    if np.any(to_clip(cam, w, h, np.concatenate([beams.p, beams.q], axis=1))[..., 3] <= 0.0):
+    if not np.all(to_clip(cam, w, h, np.concatenate([beams.p, beams.q], axis=1))[..., 3] > 0.0):
         raise UserError(f"{where}: eye: the eye view's camera must see the whole pool in front of it")
 
 

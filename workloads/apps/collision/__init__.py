@@ -147,9 +147,12 @@ class Body:
         return (1.0 - t) * self.v0 + t * self.v1
 
     def swept_box(self) -> tuple[np.ndarray, np.ndarray]:
-        """The bounding box of the swept volume (the vertices' paths are segments)."""
+        """The bounding box of the swept volume (the vertices' paths are segments), widened by a few ulps:
+        :meth:`at` rounds, and (1 - t) v0 + t v1 may lie an ulp outside [min, max]."""
         both = np.concatenate([self.v0, self.v1])
-        return both.min(axis=0), both.max(axis=0)
+        lo, hi = both.min(axis=0), both.max(axis=0)
+        pad = 8.0 * np.finfo(np.float64).eps * np.maximum(np.abs(lo), np.abs(hi))
+        return lo - pad, hi + pad
 
 
 def slot_rects(half: np.ndarray, slots: int) -> list[tuple[float, float, float, float]]:
@@ -482,7 +485,6 @@ class Collision(Workload):
         if len(self.bodies) < 2:
             raise UserError(f"{path}: objects: a collision workload needs at least two objects, "
                             f"got {len(self.bodies)}")
-        self.data = data
         return self
 
     def check(self, variants=None, *, reference_spp=None) -> str:
