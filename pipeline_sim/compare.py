@@ -30,6 +30,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline_sim.config import ArchConfig
+from pipeline_sim.definitions import ARITHMETIC
 from pipeline_sim.errors import UserError, did_you_mean
 from pipeline_sim.output_folder import OutputFolder
 
@@ -90,7 +91,6 @@ STAGES = {  # Munkberg11 Fig. 15's stages and the units whose arithmetic they ar
     "sample_test": ("sample_tester",),
     "interpolation_setup": ("shading",),
 }
-ARITH = ("add", "mul", "madd", "rcp", "compare")
 
 
 @dataclass
@@ -155,7 +155,7 @@ def _row(name: str, result) -> dict:
     }
     row["ste"] = row["samples_covered"] / row["samples_tested"] if row["samples_tested"] else float("nan")
     for stage, units in STAGES.items():
-        row[f"ops_{stage}"] = int(c[c.unit.isin(units) & c.counter.isin(ARITH)].value.sum())
+        row[f"ops_{stage}"] = int(c[c.unit.isin(units) & c.counter.isin(ARITHMETIC)].value.sum())
     row["ops_total"] = sum(row[f"ops_{s}"] for s in STAGES)
     row["depth_bytes"] = get("rop", "bytes_read") + get("rop", "bytes_written")
     row["shader_executions"] = get("shading", "shader_executions")

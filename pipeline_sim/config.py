@@ -201,11 +201,17 @@ MOVED = {
 }
 
 
+def is_toml_value(value: Any, lists: bool = False) -> bool:
+    """Whether ``value`` is a TOML scalar (a number, boolean or string), or with ``lists`` also a list of them."""
+    scalars = (bool, int, float, str)
+    return isinstance(value, scalars) or (lists and isinstance(value, list) and all(isinstance(v, scalars)
+                                                                                    for v in value))
+
+
 def literal(value: Any) -> str:
     """``value`` written as a TOML literal (the right-hand side of ``--set``; a list of scalars, a
     workload file key's value), by tomli_w."""
-    scalars = (bool, int, float, str)
-    if not isinstance(value, scalars) and not (isinstance(value, list) and all(isinstance(v, scalars) for v in value)):
+    if not is_toml_value(value, lists=True):
         raise TypeError(f"not a TOML scalar: {value!r}")
     return tomli_w.dumps({"v": value}).split("=", 1)[1].strip()
 

@@ -125,9 +125,9 @@ def _example_workload_keys() -> list[tuple[str, str]]:
 
     keys = []
     for name in kinds():
-        schema = kind_of(name, "docgen").file_schema
-        if schema is not None:
-            keys.append((name, next(f.name for f in dataclasses.fields(schema))))
+        file_schema = kind_of(name, "docgen").file_schema
+        if file_schema is not None:
+            keys.append((name, next(f.name for f in dataclasses.fields(file_schema))))
     return keys[:4]
 
 

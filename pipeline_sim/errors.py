@@ -20,6 +20,11 @@ class OutputError(Exception):
     made read-only during the run). The CLI prints it on one line and exits with status 1."""
 
 
+def printable(text: str) -> str:
+    """Escape control characters so a message stays on one line."""
+    return text if text.isprintable() else text.encode("unicode_escape").decode("ascii")
+
+
 def did_you_mean(name: str, choices: Iterable[str]) -> str:
     """Return ``" (did you mean 'x'?)"`` for the closest choice, or ``""``."""
     close = difflib.get_close_matches(name, list(choices), n=1, cutoff=0.6)

@@ -79,6 +79,20 @@ def finite_or_none(value: float | None) -> float | None:
     return None if value is None or not np.isfinite(value) else float(value)
 
 
+def finite_results(value: Any) -> Any:
+    """A workload's results for results.json: every float (numpy's too) through :func:`finite_or_none` and
+    numpy integers as ints, inside dicts and lists as well; text as it is."""
+    if isinstance(value, (float, np.floating)):
+        return finite_or_none(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, dict):
+        return {k: finite_results(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_results(v) for v in value]
+    return value
+
+
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write ``data`` to a temporary sibling, flush it to disk, then rename it over ``path``.
 

@@ -52,6 +52,16 @@ class ClipPlanes:
             if lo > hi:
                 raise UserError(f"{where}.{axis}_lo/{axis}_hi: need {axis}_lo <= {axis}_hi, got [{lo}, {hi}]")
 
+    @property
+    def cuts_time(self) -> bool:
+        """Whether the planes cut the shutter (then a pass samples t even with nothing moving)."""
+        return self.t_lo > 0.0 or self.t_hi < 1.0
+
+    @property
+    def cuts_lens(self) -> bool:
+        """Whether the planes cut the lens (then a pass samples u, v even with nothing defocused)."""
+        return self.u_lo > -1.0 or self.u_hi < 1.0 or self.v_lo > -1.0 or self.v_hi < 1.0
+
     def as_array(self) -> np.ndarray:
         """(t_lo, t_hi, u_lo, u_hi, v_lo, v_hi), as the tile test reads them."""
         return np.array([self.t_lo, self.t_hi, self.u_lo, self.u_hi, self.v_lo, self.v_hi])

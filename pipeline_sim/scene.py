@@ -150,7 +150,7 @@ from pydantic import Field, Strict
 
 from . import schema
 from .config import pass_state_from, sim_options_from
-from .errors import UserError, read_input_text, unknown_key_error
+from .errors import UserError, printable, read_input_text, unknown_key_error
 from .pass_state import PassState
 from .settings import FORBID, Flag, count, number
 from .simulation import SimOptions
@@ -652,11 +652,6 @@ class _Reader:
         return np.full(n, self.number(v, key))
 
 
-def _printable(text: str) -> str:
-    """Escape control characters so a message stays on one line."""
-    return text if text.isprintable() else text.encode("unicode_escape").decode("ascii")
-
-
 def _fmt(v: np.ndarray) -> str:
     return "[" + ", ".join(f"{x:g}" for x in v) + "]"
 
@@ -949,7 +944,7 @@ def _obj_problem(data: bytes) -> str | None:
                 try:
                     i = int(part)
                 except ValueError:
-                    return f"line {n}: face vertex '{_printable(word)}' is not of the form i, i/t, i//n or i/t/n"
+                    return f"line {n}: face vertex '{printable(word)}' is not of the form i, i/t, i//n or i/t/n"
                 if i == 0:
                     return f"line {n}: face vertex '{word}' uses index 0 (OBJ indices start at 1)"
                 if i < 0 and -i > seen[kind]:
@@ -1223,7 +1218,7 @@ def _parse_error_detail(e: Exception) -> str:
 def _load_mesh_file(r: _Reader, key: str, written: str, resolved: Path) -> _LoadedMesh:
     import trimesh
 
-    shown = _printable(f"'{written}' (resolved to '{resolved}')")
+    shown = printable(f"'{written}' (resolved to '{resolved}')")
     if not resolved.exists():
         raise r.error(key, f"mesh file not found: {shown}")
     if not resolved.is_file():
@@ -1241,7 +1236,7 @@ def _load_mesh_file(r: _Reader, key: str, written: str, resolved: Path) -> _Load
     invalid = f"not a valid {_FORMAT_NAMES[suffix]} file {shown}"
     problem = _FORMAT_PROBLEM[suffix](raw, resolved.parent)
     if problem is not None:
-        raise r.error(key, f"{invalid}: {_printable(problem)}")
+        raise r.error(key, f"{invalid}: {printable(problem)}")
     try:
         with _quiet_parser():
             loaded = trimesh.load_scene(str(resolved), process=False)
@@ -1252,7 +1247,7 @@ def _load_mesh_file(r: _Reader, key: str, written: str, resolved: Path) -> _Load
             if isinstance(loaded.geometry.get(name), trimesh.Trimesh)
         ]
     except Exception as e:  # trimesh raises many kinds on bad files
-        raise r.error(key, f"{invalid}: {_printable(_parse_error_detail(e))}") from None
+        raise r.error(key, f"{invalid}: {printable(_parse_error_detail(e))}") from None
 
     positions, normals, faces, colors = [], [], [], []
     offset = 0
@@ -1601,7 +1596,7 @@ def _parse(data: dict, where: str, base_dir: Path, source: bytes | None, path: P
         raise UserError(f"{where}: expected a TOML table at the top level, got {_type_name(data)}")
     for k in data:
         if k not in _TOP_LEVEL_KEYS:
-            raise unknown_key_error(where, _printable(k), _TOP_LEVEL_KEYS)
+            raise unknown_key_error(where, printable(k), _TOP_LEVEL_KEYS)
     image = _parse_image(r, data)
     camera = _parse_camera(r, data)
     background = _parse_background(r, data)

@@ -25,7 +25,7 @@ from typing import Any, Literal
 from pydantic import TypeAdapter, ValidationError
 from pydantic.fields import FieldInfo
 
-from pipeline_sim.errors import UserError, did_you_mean, unknown_key_error
+from pipeline_sim.errors import UserError, did_you_mean, printable, unknown_key_error
 
 _UNKNOWN = ("unexpected_keyword_argument", "extra_forbidden")
 _EXPECTED = {"int": "an integer", "float": "a number", "bool": "true or false", "str": "a string"}
@@ -163,9 +163,7 @@ def _message(cls: type, err: dict[str, Any], where: str, prefix: tuple[str | int
     if kind in _UNKNOWN:
         owner = _class_at(cls, loc[:-1])
         known = [f.name for f in dataclasses.fields(owner)] if owner is not None else []
-        key = str(loc[-1])
-        key = key if key.isprintable() else key.encode("unicode_escape").decode("ascii")  # one line
-        return unknown_key_error(f"{where}: [{table}]" if table else where, key, known)
+        return unknown_key_error(f"{where}: [{table}]" if table else where, printable(str(loc[-1])), known)
     if kind == "missing" or kind == "missing_argument":
         doc = _doc(cls, loc)
         return UserError(f"{where}: {path}: missing required key{f' ({doc})' if doc else ''}")

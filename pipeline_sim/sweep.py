@@ -93,7 +93,8 @@ from pydantic import Field, Strict
 
 from pipeline_sim import schema
 from pipeline_sim.accuracy import METRICS, REFERENCE_KINDS, ReferenceSpec
-from pipeline_sim.config import literal as toml_literal
+from pipeline_sim.config import is_toml_value, literal as toml_literal
+from pipeline_sim.definitions import ARITHMETIC
 from pipeline_sim.errors import UserError, did_you_mean, read_input_text, unknown_key_error
 from pipeline_sim.output import atomic_write_text
 from pipeline_sim.output_folder import OutputFolder, check_writable_folder, clean_leftovers
@@ -120,7 +121,6 @@ WORKLOAD_PREFIX = "workload."
 #: it has no finite value).
 RESULT_PREFIX = "result."
 
-_ARITHMETIC = ("add", "mul", "madd", "rcp", "compare")
 _ID_LENGTH = 12
 
 
@@ -260,10 +260,8 @@ def _value_list(where: str, value: Any, unique: bool = True, lists: bool = False
     if not value:
         raise UserError(f"{where}: the list of values is empty")
     seen: set[str] = set()
-    scalars = (bool, int, float, str)
     for v in value:
-        if not isinstance(v, scalars) and not (lists and isinstance(v, list) and all(isinstance(x, scalars)
-                                                                                      for x in v)):
+        if not is_toml_value(v, lists):
             kinds = "numbers, booleans, strings or lists of them" if lists else "numbers, booleans or strings"
             raise UserError(f"{where}: values must be {kinds}, got {v!r}")
         canon = json.dumps(v)
@@ -523,7 +521,7 @@ def _summarize(result: Any, metrics: dict[str, float | None]) -> dict[str, Any]:
     out = {
         "frame_cycles": float(hd["frame_cycles"]),
         "wall_time_s": float(hd["wall_time_s"]),
-        "ops_total": int(c[c.counter.isin(_ARITHMETIC)].value.sum()),
+        "ops_total": int(c[c.counter.isin(ARITHMETIC)].value.sum()),
         "samples_tested": int(hd["samples_tested"]),
         "samples_covered": int(hd["samples_covered"]),
         "ste": hd["ste"],

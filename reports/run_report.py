@@ -106,7 +106,7 @@ def run_figures(result) -> Figures:
     frame cycles (in run order; slugs prefixed with the pass name when there are several passes)."""
     from reports import figures as F
 
-    ranked = sorted(result.passes, key=lambda n: -result.passes[n].timing.frame_cycles)[:MAX_PASS_FIGURES]
+    ranked = set(sorted(result.passes, key=lambda n: -result.passes[n].timing.frame_cycles)[:MAX_PASS_FIGURES])
     out = []
     for name, r in result.passes.items():
         if name not in ranked:
@@ -195,7 +195,8 @@ def markdown_report(result, run_info: dict, files_dir: str | Path | None = None,
     if files_dir is not None:
         fdir = Path(files_dir)
         fdir.mkdir(parents=True, exist_ok=True)
-        lines += ["## Figures", ""] + ([_figures_note(result), ""] if _figures_note(result) else [])
+        note = _figures_note(result)
+        lines += ["## Figures", ""] + ([note, ""] if note else [])
         for slug, title, caption, png in run_figures(result) if figures is None else figures:
             atomic_write_bytes(fdir / f"{slug}.png", png)
             lines += [f"![{title}]({fdir.name}/{slug}.png)", "", f"*{title}.* {caption}", ""]
@@ -232,7 +233,8 @@ def html_report(result, run_info: dict, figures: Figures | None = None) -> str:
         f'src="{png_data_uri(png)}"><figcaption><strong>{html.escape(ftitle)}.</strong> '
         f"{html.escape(caption)}</figcaption></figure>"
         for slug, ftitle, caption, png in (run_figures(result) if figures is None else figures))
-    note = f"<p>{html.escape(_figures_note(result))}</p>" if _figures_note(result) else ""
+    note = _figures_note(result)
+    note = f"<p>{html.escape(note)}</p>" if note else ""
     return f"""<!doctype html>
 <html><head><meta charset="utf-8"><meta name="generator" content="pipeline-sim"><title>pipeline-sim: {title}</title>
 <style>body{{font-family:sans-serif;max-width:60em;margin:2em auto}} td,th{{padding:2px 8px;text-align:right}}

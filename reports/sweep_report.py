@@ -41,6 +41,7 @@ import pandas as pd
 from pipeline_sim.errors import UserError, did_you_mean
 from pipeline_sim.output import atomic_write_bytes
 from pipeline_sim.output_folder import OutputFolder, check_output_file
+from pipeline_sim.sweep import RESULT_PREFIX
 from reports import figures as F
 
 __all__ = ["Sweep", "load_sweep", "build_report", "select_images", "representative_point"]
@@ -59,8 +60,6 @@ BASE_COLUMNS = ("point_id", "status", "error", "frame_cycles", "wall_time_s", "o
                 "depth_bytes_per_pixel", "bottleneck_unit", "rmse", "psnr", "ssim", "flip")
 METRIC_COLUMNS = ("rmse", "psnr", "ssim", "flip")
 COST_COLUMNS = ("frame_cycles", "ops_total", "wall_time_s")
-#: Prefix of points.csv's columns holding a workload's results (``pipeline_sim.sweep``).
-RESULT_PREFIX = "result."
 #: Metrics where higher is better (the Pareto frontier needs "lower is better").
 HIGHER_IS_BETTER = ("psnr", "ssim")
 MAX_IMAGES = 8

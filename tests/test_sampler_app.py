@@ -225,6 +225,9 @@ def test_bad_torus_is_one_line(tmp_path):
     f.write_text('kind = "sampling"\nmethod = "torus"\nmajr = 1.0\n')
     with pytest.raises(UserError, match=r"did you mean 'major'"):
         load_workload(f, ARCH)
+    f.write_text('kind = "sampling"\nmethod = "torus"\npattern = "net"\nspp = 3\n')
+    with pytest.raises(UserError, match=r"t\.toml: spp = 3 must be a power of two"):
+        load_workload(f, ARCH).check()
 
 
 def test_the_doc_example_runs_as_written():

@@ -39,7 +39,7 @@ import pandas as pd
 from pydantic import Field
 
 from pipeline_sim.errors import UserError, did_you_mean
-from pipeline_sim.output import finite_or_none
+from pipeline_sim.output import finite_results
 from pipeline_sim.sampling import concentric_disk
 from pipeline_sim.scene import Camera, ImageSettings, Lens, Scene, load_scene
 from pipeline_sim.schema import key
@@ -573,7 +573,7 @@ class Glossy(Workload):
                 "refraction_angle_max_deg": float(rings.angle_max_deg.max()),
                 "refraction_colour_error": float(np.average(rings.colour_error, weights=rings.texels)),
             })
-        return WorkloadResult(ran, results={k: _finite(v) for k, v in results.items()}, tables=tables, images=images)
+        return WorkloadResult(ran, results=finite_results(results), tables=tables, images=images)
 
     def resolved(self) -> dict:
         _, _, cams = self.cameras()
@@ -585,15 +585,6 @@ class Glossy(Workload):
     @property
     def digest(self) -> str:
         return hashlib.sha256((super().digest + self.scene.digest).encode()).hexdigest()
-
-
-def _finite(value):
-    """A results value with every float that is not finite as None (strict JSON)."""
-    if isinstance(value, float):
-        return finite_or_none(value)
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    return value
 
 
 WORKLOAD = Glossy

@@ -38,7 +38,7 @@ import pandas as pd
 
 from pipeline_sim.definitions import IN_OBJECT, IN_SAMPLE, IN_T, IN_U, IN_V, IN_X, IN_Y
 from pipeline_sim.errors import UserError
-from pipeline_sim.output import finite_or_none
+from pipeline_sim.output import finite_results
 from pipeline_sim.schema import key
 from pipeline_sim.settings import FORBID, Text, count, number
 from pipeline_sim.shaders import append_record, fetch
@@ -571,7 +571,8 @@ def adaptive_white_noise(s: Settings, rho: np.ndarray, arch, run_passes) -> tupl
     bounds = slab_bounds(s.levels)
     square = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], float) * s.cell
     draws = []
-    for level, corners in density_cells(rho, s.cell, s.levels).items():
+    cells = density_cells(rho, s.cell, s.levels)
+    for level, corners in cells.items():
         tri = np.minimum((corners[:, None, None, :] + square[None]).reshape(-1, 3, 2), [w, h])
         draws.append(prism_draw(tri, tri, w, h, t_hi=bounds[level], objects=np.full(len(tri), level)))
     expected = s.spp * float(rho.sum(dtype=np.float64))
@@ -586,7 +587,7 @@ def adaptive_white_noise(s: Settings, rho: np.ndarray, arch, run_passes) -> tupl
     var = block_sums(s.spp * rho.astype(np.float64) * (1.0 - rho), 8)
     keep = var > 0
     chi2 = float(((observed[keep] - mean[keep]) ** 2 / var[keep]).sum())
-    bound = sum(len(c) * s.cell**2 * bounds[k] for k, c in density_cells(rho, s.cell, s.levels).items())
+    bound = sum(len(c) * s.cell**2 * bounds[k] for k, c in cells.items())
     results = {"points": len(pts), "expected_points": expected, "points_z": (len(pts) - expected) / math.sqrt(expected),
                "overflow": int(result.append.overflow), "bound_volume": bound, "density_volume": float(rho.sum()),
                "chi2_blocks": int(keep.sum()), "chi2": chi2,
@@ -624,11 +625,6 @@ def plot_points(points: np.ndarray, extent: tuple[float, float], title: str, rad
     return fig
 
 
-def strict(results: dict) -> dict:
-    """The results for results.json: counts as integers, other figures as finite floats or null."""
-    return {k: int(v) if isinstance(v, (int, np.integer)) else finite_or_none(v) for k, v in results.items()}
-
-
 class Sampling(Workload):
     """The kind ``sampling``: the rasterizer as a sampler (Nilsson12 §5), by ``method``."""
 
@@ -647,7 +643,7 @@ class Sampling(Workload):
 
         for v in variants or [self]:
             s = v.settings_file
-            check_spp(s.pattern, s.spp, 64, f"{v.path}: ")
+            check_spp(s.pattern, s.spp, 64, str(v.path))
             if s.method == "torus" and s.minor >= s.major:
                 raise UserError(f"{v.path}: minor: the minor radius {s.minor} must be less than the major "
                                 f"radius {s.major}")
@@ -673,7 +669,7 @@ class Sampling(Workload):
         start = time.perf_counter()
         if s.method == "torus":
             passes, results = integrate_torus(s, self.arch, run_passes)
-            return WorkloadResult(passes, results=strict(results))
+            return WorkloadResult(passes, results=finite_results(results))
         if s.method == "poisson":
             passes, results, pts, table = poisson_disk(s, self.arch, run_passes)
             results["wall_time_s"] = time.perf_counter() - start
@@ -681,12 +677,12 @@ class Sampling(Workload):
             results.update({"scipy_points": len(ref), "scipy_wall_time_s": ref_time,
                             "points_vs_scipy": len(pts) / len(ref)})
             fig = plot_points(pts, (1.0, 1.0), f"{len(pts)} points, radius {s.radius}", s.radius)
-            return WorkloadResult(passes, results=strict(results),
+            return WorkloadResult(passes, results=finite_results(results),
                                   tables={"rounds": table}, arrays={"points": pts}, figures={"points": fig})
         rho = load_density(s.image, self.path.parent, s.resolution)
         passes, results, pts = adaptive_white_noise(s, rho, self.arch, run_passes)
         fig = plot_points(pts, (rho.shape[1], rho.shape[0]), f"{len(pts)} points following {s.image}")
-        return WorkloadResult(passes, results=strict(results),
+        return WorkloadResult(passes, results=finite_results(results),
                               arrays={"points": pts, "density": rho}, figures={"points": fig})
 
 

@@ -32,7 +32,7 @@ from pydantic import Field
 
 from pipeline_sim.errors import UserError
 from pipeline_sim.output import finite_or_none
-from pipeline_sim.sampling import concentric_disk, t_ordered_net
+from pipeline_sim.sampling import concentric_disk, map_lens, t_ordered_net
 from pipeline_sim.scene import Camera
 from pipeline_sim.schema import key
 from pipeline_sim.settings import FORBID, Flag, count, number
@@ -181,18 +181,12 @@ def light_camera(s: Settings) -> Camera:
                   s.light_height + LIGHT_FAR_MARGIN, frustum=(-a, a, -a, a))
 
 
-def light_points(shape: str, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Light points (u, v) on [-1, 1]^2 (``square``) or the unit disk (``disk``, concentric map) of
-    unit-square points (a, b)."""
-    return (2.0 * a - 1.0, 2.0 * b - 1.0) if shape == "square" else concentric_disk(a, b)
-
-
 def light_tuples(k: int, shape: str) -> np.ndarray:
     """The K tuples (u, v, t), (K, 3), sorted by t: the t-ordered (0, m, 3)-net (K = 2^m) at its strata's
     centres, (u, v) on [-1, 1]^2 or the unit disk (concentric map), t_k = (k + 0.5) / K; as float32 values
     (those the samples hold)."""
     net = t_ordered_net(k.bit_length() - 1) + 0.5 / k
-    u, v = light_points(shape, net[:, 0], net[:, 1])
+    u, v = map_lens(net[:, 0], net[:, 1], shape)  # the light is the lens of the shadow camera
     return np.stack([u, v, net[:, 2]], axis=1).astype(np.float32).astype(np.float64)
 
 
@@ -448,7 +442,7 @@ def reference_visibility(s: Settings, samples: int) -> np.ndarray:
     target = np.stack([xn * focus / proj[0, 0], yn * focus / proj[1, 1], np.full(len(pix), -focus)], axis=1)
     origin = np.zeros((len(pix), 3))
     origin[:, 0], origin[:, 1] = (s.lens_radius * c for c in concentric_disk(lens[:, 0], lens[:, 1]))
-    lu, lv = light_points(s.light_shape, pts[:, 0], pts[:, 1])
+    lu, lv = map_lens(pts[:, 0], pts[:, 1], s.light_shape)
     axes = light.view_matrix()[:2, :3]  # the light's x and y axes in world space
     lamps = light.eye + 0.5 * s.light_size * (lu[:, None] * axes[0] + lv[:, None] * axes[1])
     vis = np.empty(len(pix))
