@@ -16,8 +16,10 @@ swap them for the duration of one call and restore them afterwards.
   before the next).
 * ``simpy_only(script)``: the SimPy layer alone: ``pipeline.simulate`` with
   steps that do no work and return the recorded output counts and cycles.
-* ``unit_timers()``: wall time of every unit's ``run``, the sample tester's
-  numba kernel, sample generation and the resolves.
+* ``unit_timers()``: wall and main-thread CPU time of every unit's ``run``,
+  the sample tester's numba kernel, the z-cull refresh, the waits for a
+  screen region's samples (made on a background thread while the region
+  before is processed) and the resolves.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ import pipeline_sim.render as render
 import units.sample_tester as sample_tester_mod
 from pipeline_sim import pipeline
 from pipeline_sim.pipeline import Stage, TimingResult
+from pipeline_sim.regions import RegionSamples
 from units.rop import Rop
 from units.sample_tester import SampleTester
 from units.shading_cache import Shading
@@ -151,9 +154,11 @@ def simpy_only(script: Script) -> tuple[float, float, float]:
 
 
 class Timers:
-    """Accumulated wall (perf_counter) and CPU (process_time) seconds and calls per key; ``self_seconds`` and
-    ``self_cpu`` leave out the timed calls made inside (a screen region's samples made or resolved within a
-    stage's step), except those of :data:`TRANSPARENT` keys, which their caller's time keeps."""
+    """Accumulated wall (perf_counter) and CPU seconds of the calling thread (thread_time) and calls per key;
+    ``self_seconds`` and ``self_cpu`` leave out the timed calls made inside (a screen region's samples
+    waited for or resolved within a stage's step), except those of :data:`TRANSPARENT` keys, which their
+    caller's time keeps. Every timed call is made on the main thread; the CPU of other threads (sample
+    generation's) is what the process used beyond the main thread."""
 
     def __init__(self):
         self.seconds: dict[str, float] = defaultdict(float)
@@ -162,6 +167,7 @@ class Timers:
         self.self_seconds: dict[str, float] = defaultdict(float)
         self.self_cpu: dict[str, float] = defaultdict(float)
         self.stack: list[list[float]] = []  # per open timed call: its timed children's wall and CPU
+        self.other_threads_cpu = 0.0  # CPU the process used beyond the main thread (set by the caller)
 
 
 #: Keys timed inside a unit's run whose time stays that unit's (the tester's kernel).
@@ -173,11 +179,11 @@ def _timed(fn, timers: Timers, key: str):
         children = [0.0, 0.0]
         timers.stack.append(children)
         t0 = time.perf_counter()
-        c0 = time.process_time()
+        c0 = time.thread_time()
         try:
             return fn(*a, **k)
         finally:
-            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+            wall, cpu = time.perf_counter() - t0, time.thread_time() - c0
             timers.stack.pop()
             timers.cpu[key] += cpu
             timers.seconds[key] += wall
@@ -193,7 +199,8 @@ def _timed(fn, timers: Timers, key: str):
 
 @contextlib.contextmanager
 def unit_timers(timers: Timers):
-    """Time each unit's ``run``, the sample test kernel, make_samples, the resolve and the stage steps."""
+    """Time each unit's ``run``, the sample test kernel, the z-cull refresh, the waits for a region's samples,
+    the resolve and the stage steps; count the sample sets made (``calls["make_samples"]``, on any thread)."""
     with contextlib.ExitStack() as stack:
         for name, cls in UNIT_CLASSES.items():
             stack.enter_context(patched(cls, "run", _timed(cls.run, timers, name)))
@@ -202,7 +209,13 @@ def unit_timers(timers: Timers):
         stack.enter_context(patched(Rop, "open_region", _timed(Rop.open_region, timers, "resolve")))
         stack.enter_context(patched(sample_tester_mod, "sample_test_kernel",
                                     _timed(sample_tester_mod.sample_test_kernel, timers, "sample_test_kernel")))
-        stack.enter_context(patched(render, "make_samples", _timed(render.make_samples, timers, "make_samples")))
+        stack.enter_context(patched(Rop, "refresh_zcull", _timed(Rop.refresh_zcull, timers, "zcull refresh")))
+        stack.enter_context(patched(RegionSamples, "region", _timed(RegionSamples.region, timers, "samples wait")))
+
+        def make_samples(*a, _make=render.make_samples, **k):
+            timers.calls["make_samples"] += 1
+            return _make(*a, **k)
+        stack.enter_context(patched(render, "make_samples", make_samples))
 
         def simulate(stages, source_batches, queue_depth, capacities=None):
             for s in stages:

@@ -31,9 +31,11 @@ region from the rows of its records.
 
 from __future__ import annotations
 
+import bisect
 from collections import OrderedDict
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -121,6 +123,14 @@ class RegionSamples:
     Samples depend only on (seed, pixel, sample index), so a region that was
     dropped and is requested again comes back identical (``made`` counts
     every generation, a repeat included).
+
+    Once told which regions the pipeline will visit (``will_visit``), the
+    first request of a region starts making the next region to be visited on
+    a background thread, so that its samples are made while this region's
+    batches run through the pipeline (sample generation runs without the
+    interpreter lock); a request for it then waits for the thread. This
+    holds up to ``keep + 1`` regions' samples at once, and it changes no
+    value: the same function makes the same set.
     """
 
     def __init__(self, plan: RegionPlan, make: Callable[[tuple[int, int]], SampleSet], keep: int = 3):
@@ -128,19 +138,49 @@ class RegionSamples:
         self._make = make
         self._keep = keep
         self._sets: OrderedDict[int, SampleSet] = OrderedDict()
+        self._visits: list[int] = []  # sorted: regions are visited in increasing order
+        self._pool: ThreadPoolExecutor | None = None
+        self._pending: dict[int, Future] = {}
         self.made = 0
 
     def region(self, region: int) -> SampleSet:
         s = self._sets.get(region)
-        if s is None:
-            s = self._make(self.plan.bounds(region))
-            self.made += 1
-            self._sets[region] = s
-            while len(self._sets) > self._keep:
-                self._sets.popitem(last=False)
-        else:
+        if s is not None:
             self._sets.move_to_end(region)
+            return s
+        pending = self._pending.pop(region, None)
+        s = pending.result() if pending is not None else self._make(self.plan.bounds(region))
+        self.made += 1
+        self._sets[region] = s
+        while len(self._sets) > self._keep:
+            self._sets.popitem(last=False)
+        self._prefetch_after(region)
         return s
+
+    def will_visit(self, regions: Sequence[int]) -> None:
+        """The regions the pipeline will visit; starts making the one after the latest request."""
+        self._visits = sorted(regions)
+        if self._sets:
+            self._prefetch_after(next(reversed(self._sets)))
+
+    def _prefetch_after(self, region: int) -> None:
+        i = bisect.bisect_right(self._visits, region)
+        if i == len(self._visits):
+            return
+        region = self._visits[i]
+        if region in self._sets or region in self._pending:
+            return
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="region-samples")
+        self._pending[region] = self._pool.submit(self._make, self.plan.bounds(region))
+
+    def close(self) -> None:
+        """Drop the sets and stop the background thread (waiting for a set it is making)."""
+        self._sets.clear()
+        self._pending.clear()
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
 
 
 class RegionCursor:

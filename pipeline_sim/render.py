@@ -382,22 +382,26 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
             kept[out] = True
             c.add_ops(ops), c.add_events(ev)
     bins = bin_triangles(setup.table.bounds, ids, plan)
-    tpb = sim.triangles_per_batch
-    # a batch never spans two draws (each has its own clip planes)
-    tri_batches = [RegionBatch(r, part[i : i + tpb]) for r, b in enumerate(bins)
-                   for part in np.split(b, np.flatnonzero(np.diff(tri_draw[b])) + 1)
-                   for i in range(0, len(part), tpb)]
-    # FIFOs hold queue_depth batches of the shipped default size, counted in
-    # records: a batch size then sets only the granularity of the timing
-    default = SimOptions()
-    per_kind = {"triangles": default.triangles_per_batch, "tiles": default.tiles_per_batch,
-                "samples": default.samples_per_batch}
-    capacities = [pcfg.queue_depth * per_kind[INPUT_KIND[st.name]] for st in stages]
-    if ordered:
-        stages = run_in_order(stages, tri_batches, after_triangle_batch)
-    timing = simulate(stages, tri_batches, pcfg.queue_depth, capacities)
-    image = rop.resolve()
-    depth = rop.depth_samples()
+    samples.will_visit([r for r, b in enumerate(bins) if len(b)])
+    try:
+        tpb = sim.triangles_per_batch
+        # a batch never spans two draws (each has its own clip planes)
+        tri_batches = [RegionBatch(r, part[i : i + tpb]) for r, b in enumerate(bins)
+                       for part in np.split(b, np.flatnonzero(np.diff(tri_draw[b])) + 1)
+                       for i in range(0, len(part), tpb)]
+        # FIFOs hold queue_depth batches of the shipped default size, counted in
+        # records: a batch size then sets only the granularity of the timing
+        default = SimOptions()
+        per_kind = {"triangles": default.triangles_per_batch, "tiles": default.tiles_per_batch,
+                    "samples": default.samples_per_batch}
+        capacities = [pcfg.queue_depth * per_kind[INPUT_KIND[st.name]] for st in stages]
+        if ordered:
+            stages = run_in_order(stages, tri_batches, after_triangle_batch)
+        timing = simulate(stages, tri_batches, pcfg.queue_depth, capacities)
+        image = rop.resolve()
+        depth = rop.depth_samples()
+    finally:
+        samples.close()
     appended = None
     if append is not None:
         records, count = append

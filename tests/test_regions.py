@@ -2,6 +2,7 @@
 
 import dataclasses
 import itertools
+import threading
 
 import numpy as np
 import pytest
@@ -88,6 +89,33 @@ def test_region_samples_are_slices_of_the_frame_and_come_back_identical():
         for name in ("x", "y", "u", "v", "t"):
             np.testing.assert_array_equal(getattr(s, name), getattr(whole, name)[k])
     assert regions.made == len(order)
+
+
+def test_the_next_region_to_visit_is_made_ahead_on_another_thread_with_the_same_values():
+    width, height, spp = 24, 64, 8
+    whole = make_samples(width, height, spp, 5, lens=True, motion=True)
+    plan = RegionPlan(width, height, 16)  # regions 0-3
+    made_on = {}
+
+    def make(rows):
+        made_on[rows[0] // 16] = threading.current_thread().name
+        return make_samples(width, height, spp, 5, lens=True, motion=True, rows=rows)
+
+    regions = RegionSamples(plan, make, keep=1)
+    regions.region(0)
+    regions.will_visit([0, 2, 3])  # region 1 gets no batches: the next one to visit is 2
+    try:
+        for r in (2, 3):
+            s = regions.region(r)
+            k = slice(r * 16 * width * spp, (r + 1) * 16 * width * spp)
+            for name in ("x", "y", "u", "v", "t"):
+                np.testing.assert_array_equal(getattr(s, name), getattr(whole, name)[k])
+    finally:
+        regions.close()
+    assert made_on[0] == threading.current_thread().name
+    assert 1 not in made_on
+    assert made_on[2].startswith("region-samples") and made_on[3].startswith("region-samples")
+    assert regions.made == 3
 
 
 @given(start=st.integers(-1, 4), regions=st.lists(st.integers(0, 4), max_size=30))
