@@ -14,7 +14,7 @@ culling algorithm's module provides:
   them for the triangles that survived setup (None: nothing to fill);
 * ``TILE_EXT``: the fields it adds to the tile records (``NO_TILE_FIELDS``: none);
 * its per-record bound (numba functions of its module or of
-  ``units.tile_test_bounds``), which ``units.tile_test.tile_test_kernel`` calls in
+  ``units.tile_test_bounds``), which ``units.tile_test.tile_test_kernel_for`` calls in
   the algorithm's branch of its record loop (code: its place in ``ALGORITHMS``). A
   kernel of its own per algorithm, with the record loop's shared start and z^ end
   as numba helpers, measured 1.25x (hierarchical) to 2x (bbox) slower: the loop stays one;

@@ -18,6 +18,8 @@ tester never covers a sample outside them.
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numba as nb
 import numpy as np
 
@@ -52,154 +54,170 @@ _NO_MASKS = np.zeros(0, np.uint64)
 _NO_HULLS = culling.algorithm("hull").TRIANGLE_EXT.table(0)
 
 
-@nb.njit(cache=True)
-def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, algorithm, edge_test, quadratic,
-                     gamma_per_tile, lens_bounds, clips,
-                     p0, dp, l0, dl, t_span, flags, edge_f, edge_h, edge_gamma, edge_g, edge_fg, edge_abs, plane_n,
-                     plane_d,
-                     hull, hull_n, hull_off, tuples, depth_c1, depth_c0,
-                     out_keep, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, lines, mask, ops, events):
-    """Test each (triangle, tile) record; fill its intervals and ``out_keep``.
+_KERNELS: dict[tuple[int, bool], Callable] = {}  # (algorithm, quadratic) -> its compiled kernel
 
-    ``algorithm`` (ALG_*): hierarchical, Munkberg11 §4.1-4.2 (t^ from the moving box
-    and the linearized or, with ``quadratic``, the exact quadratic edges) and
-    lens bounds (u^, v^); BBOX (no rejection); the convex hull of McGuire10
-    (Wu13 §3.2); dual-space bounds (Laine11, Wu13 §2);
-    two-stage culling (Wu13 §3.3-3.4), which also writes per-record time
-    ``lines`` linear in u and v; Interleave UVT, which writes a tuple
-    ``mask``. z^ from Nilsson12 App. A for all of them; clip planes (Nilsson12 §2).
+
+def tile_test_kernel_for(algorithm: int, quadratic: bool) -> Callable:
+    """The tile test kernel of one culling algorithm (ALG_*) and edge solver, compiled on first use.
+
+    The algorithm and the solver are constants of each kernel, so numba prunes
+    the other algorithms' branches before it compiles: a run compiles only the
+    bounds its algorithm uses (every variant is cached on disk like any kernel).
     """
-    for i in range(tri_ids.shape[0]):
-        tri = tri_ids[i]
-        fl = flags[tri]
-        x0 = tile_x[i] * tile_size - MARGIN_PX
-        x1 = min((tile_x[i] + 1) * tile_size, width) + MARGIN_PX
-        y0 = tile_y[i] * tile_size - MARGIN_PX
-        y1 = min((tile_y[i] + 1) * tile_size, height) + MARGIN_PX
-        ta = max(t_span[tri, 0], clips[0])  # user clip planes bound every interval (Nilsson12 §2)
-        tb = min(t_span[tri, 1], clips[1])
-        out_keep[i] = False
-        wpos = (fl & FLAG_WPOS) != 0
-        has_lens = (fl & FLAG_LENS) != 0
-        ulo, uhi, vlo, vhi = clips[2], clips[3], clips[4], clips[5]
-        lo, hi = ta, tb
-        if algorithm == ALG_HIERARCHICAL:
-            lo, hi = box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ta, tb, ops)
-            if lo > hi:
-                events[EV_REJ_BOX] += 1
-                continue
-            if edge_test and (fl & FLAG_EDGE) != 0:
-                if quadratic:
-                    lo, hi = quadratic_time_interval(edge_f, edge_g, edge_h, edge_abs, tri, x0, x1, y0, y1, lo, hi,
-                                                     ops)
-                else:
-                    lo, hi = edge_time_interval(edge_h, edge_gamma, edge_g, edge_fg, edge_abs, gamma_per_tile, tri,
-                                                 x0, x1, y0, y1, lo, hi, ops)
+    key = (int(algorithm), bool(quadratic))
+    kernel = _KERNELS.get(key)
+    if kernel is None:
+        kernel = _KERNELS[key] = _compile_kernel(*key)
+    return kernel
+
+
+def _compile_kernel(algorithm: int, quadratic: bool) -> Callable:
+    @nb.njit(cache=True)
+    def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, edge_test, gamma_per_tile, lens_bounds,
+                         clips, p0, dp, l0, dl, t_span, flags, edge_f, edge_h, edge_gamma, edge_g, edge_fg, edge_abs,
+                         plane_n, plane_d, hull, hull_n, hull_off, tuples, depth_c1, depth_c0,
+                         out_keep, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, lines, mask, ops, events):
+        """Test each (triangle, tile) record; fill its intervals and ``out_keep``.
+
+        ``algorithm`` (ALG_*): hierarchical, Munkberg11 §4.1-4.2 (t^ from the moving box
+        and the linearized or, with ``quadratic``, the exact quadratic edges) and
+        lens bounds (u^, v^); BBOX (no rejection); the convex hull of McGuire10
+        (Wu13 §3.2); dual-space bounds (Laine11, Wu13 §2);
+        two-stage culling (Wu13 §3.3-3.4), which also writes per-record time
+        ``lines`` linear in u and v; Interleave UVT, which writes a tuple
+        ``mask``. z^ from Nilsson12 App. A for all of them; clip planes (Nilsson12 §2).
+        """
+        for i in range(tri_ids.shape[0]):
+            tri = tri_ids[i]
+            fl = flags[tri]
+            x0 = tile_x[i] * tile_size - MARGIN_PX
+            x1 = min((tile_x[i] + 1) * tile_size, width) + MARGIN_PX
+            y0 = tile_y[i] * tile_size - MARGIN_PX
+            y1 = min((tile_y[i] + 1) * tile_size, height) + MARGIN_PX
+            ta = max(t_span[tri, 0], clips[0])  # user clip planes bound every interval (Nilsson12 §2)
+            tb = min(t_span[tri, 1], clips[1])
+            out_keep[i] = False
+            wpos = (fl & FLAG_WPOS) != 0
+            has_lens = (fl & FLAG_LENS) != 0
+            ulo, uhi, vlo, vhi = clips[2], clips[3], clips[4], clips[5]
+            lo, hi = ta, tb
+            if algorithm == ALG_HIERARCHICAL:
+                lo, hi = box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ta, tb, ops)
                 if lo > hi:
-                    events[EV_REJ_EDGE] += 1
+                    events[EV_REJ_BOX] += 1
                     continue
-                # the box taken over the narrowed [lo, hi] is tighter (Munkberg11 §4.1 applied again)
-                if lo > ta or hi < tb:
-                    lo, hi = box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, lo, hi, ops)
+                if edge_test and (fl & FLAG_EDGE) != 0:
+                    if quadratic:
+                        lo, hi = quadratic_time_interval(edge_f, edge_g, edge_h, edge_abs, tri, x0, x1, y0, y1, lo, hi,
+                                                         ops)
+                    else:
+                        lo, hi = edge_time_interval(edge_h, edge_gamma, edge_g, edge_fg, edge_abs, gamma_per_tile, tri,
+                                                     x0, x1, y0, y1, lo, hi, ops)
                     if lo > hi:
-                        events[EV_REJ_BOX] += 1
+                        events[EV_REJ_EDGE] += 1
                         continue
-        elif algorithm == ALG_HULL:
-            if wpos and not has_lens and hull_n[tri] > 0:
-                # the sample tester's float32 vertices move the true hull by ~F32_REL of its coordinates
-                mag = 1.0
-                for k in range(hull_n[tri]):
-                    mag = max(mag, abs(hull[tri, k, 0]) + abs(hull[tri, k, 1]))
-                pad = F32_REL * mag
-                if not hull_overlaps_tile(hull, hull_n, hull_off, tri, x0 - pad, x1 + pad, y0 - pad, y1 + pad, ops):
-                    events[EV_REJ_HULL] += 1
+                    # the box taken over the narrowed [lo, hi] is tighter (Munkberg11 §4.1 applied again)
+                    if lo > ta or hi < tb:
+                        lo, hi = box_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, lo, hi, ops)
+                        if lo > hi:
+                            events[EV_REJ_BOX] += 1
+                            continue
+            elif algorithm == ALG_HULL:
+                if wpos and not has_lens and hull_n[tri] > 0:
+                    # the sample tester's float32 vertices move the true hull by ~F32_REL of its coordinates
+                    mag = 1.0
+                    for k in range(hull_n[tri]):
+                        mag = max(mag, abs(hull[tri, k, 0]) + abs(hull[tri, k, 1]))
+                    pad = F32_REL * mag
+                    if not hull_overlaps_tile(hull, hull_n, hull_off, tri, x0 - pad, x1 + pad, y0 - pad, y1 + pad, ops):
+                        events[EV_REJ_HULL] += 1
+                        continue
+            elif algorithm == ALG_INTERLEAVE:
+                mk = interleave_mask(p0, dp, l0, dl, tri, tuples, x0, x1, y0, y1, ta, tb, ops)
+                if mk == 0:
+                    events[EV_REJ_TUPLES] += 1
                     continue
-        elif algorithm == ALG_INTERLEAVE:
-            mk = interleave_mask(p0, dp, l0, dl, tri, tuples, x0, x1, y0, y1, ta, tb, ops)
-            if mk == 0:
-                events[EV_REJ_TUPLES] += 1
-                continue
-            mask[i] = mk
-        # a triangle without lens shift is seen alike from every lens position
-        lens_live = has_lens and wpos and (
-            (algorithm == ALG_HIERARCHICAL and lens_bounds) or algorithm == ALG_DUAL or algorithm == ALG_TWO_STAGE)
-        if lens_live:  # Wu13 §3.3 (stage 1): lens bounds from the vertices at the ends of t^
-            a, b = lens_interval(p0, dp, l0, dl, tri, 0, x0, x1, lo, hi, ops)
-            ulo, uhi = max(ulo, a), min(uhi, b)
-            if ulo > uhi:
+                mask[i] = mk
+            # a triangle without lens shift is seen alike from every lens position
+            lens_live = has_lens and wpos and (
+                (algorithm == ALG_HIERARCHICAL and lens_bounds) or algorithm == ALG_DUAL or algorithm == ALG_TWO_STAGE)
+            if lens_live:  # Wu13 §3.3 (stage 1): lens bounds from the vertices at the ends of t^
+                a, b = lens_interval(p0, dp, l0, dl, tri, 0, x0, x1, lo, hi, ops)
+                ulo, uhi = max(ulo, a), min(uhi, b)
+                if ulo > uhi:
+                    events[EV_REJ_LENS] += 1
+                    continue
+                a, b = lens_interval(p0, dp, l0, dl, tri, 1, y0, y1, lo, hi, ops)
+                vlo, vhi = max(vlo, a), min(vhi, b)
+                if vlo > vhi:
+                    events[EV_REJ_LENS] += 1
+                    continue
+            if algorithm == ALG_DUAL and wpos:
+                lo, hi = dual_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ulo, uhi, vlo, vhi, lo, hi, ops)
+                if lo > hi:
+                    events[EV_REJ_DUAL] += 1
+                    continue
+            if algorithm == ALG_TWO_STAGE:
+                if wpos:  # Wu13 §3.4 (stage 2): time bounds linear in u (x axis) and v (y axis)
+                    l_c, l_s, h_c, h_s = two_stage_lines(p0, dp, l0, dl, tri, 0, x0, x1, ulo, uhi, lo, hi, ops)
+                    m_c, m_s, k_c, k_s = two_stage_lines(p0, dp, l0, dl, tri, 1, y0, y1, vlo, vhi, lo, hi, ops)
+                else:
+                    l_c, l_s, h_c, h_s = lo, 0.0, hi, 0.0
+                    m_c, m_s, k_c, k_s = lo, 0.0, hi, 0.0
+                lo = max(lo, min(l_c + l_s * ulo, l_c + l_s * uhi), min(m_c + m_s * vlo, m_c + m_s * vhi))
+                hi = min(hi, max(h_c + h_s * ulo, h_c + h_s * uhi), max(k_c + k_s * vlo, k_c + k_s * vhi))
+                ops[OP_MADD] += 8
+                ops[OP_CMP] += 8
+                if lo > hi:
+                    events[EV_REJ_TWO] += 1
+                    continue
+                lines[i, 0] = l_c - LINE_F32_REL * (abs(l_c) + abs(l_s))
+                lines[i, 1] = l_s
+                lines[i, 2] = h_c + LINE_F32_REL * (abs(h_c) + abs(h_s))
+                lines[i, 3] = h_s
+                lines[i, 4] = m_c - LINE_F32_REL * (abs(m_c) + abs(m_s))
+                lines[i, 5] = m_s
+                lines[i, 6] = k_c + LINE_F32_REL * (abs(k_c) + abs(k_s))
+                lines[i, 7] = k_s
+            zl, zh = -1.0, 1.0
+            if wpos:
+                zl, zh = np.inf, -np.inf
+                for s in range(2):
+                    t = lo if s == 0 else hi
+                    for k in range(3):
+                        z = (p0[tri, k, 2] + t * dp[tri, k, 2]) / (p0[tri, k, 3] + t * dp[tri, k, 3])
+                        zl = min(zl, z)
+                        zh = max(zh, z)
+                if (fl & FLAG_PLANE) != 0:
+                    w_lo, w_hi = plane_w_bounds(plane_n, plane_d, tri, x0, x1, y0, y1, lo, hi, ops)
+                    # z/w = c1 + c0 / w grows with w (c0 < 0)
+                    if w_hi < np.inf:
+                        zh = min(zh, depth_c1 + depth_c0 / w_hi)
+                    if w_lo > 0.0:
+                        zl = max(zl, depth_c1 + depth_c0 / w_lo)
+                pad = 1e-6 * (1.0 + abs(zl) + abs(zh))
+                zl = max(-1.0, zl - pad)
+                zh = min(1.0, zh + pad)
+                ops[OP_MADD] += 12
+                ops[OP_RCP] += 6
+                ops[OP_MUL] += 6
+                ops[OP_CMP] += 12
+            ops[OP_CMP] += 6
+            if ulo > uhi or vlo > vhi:
                 events[EV_REJ_LENS] += 1
                 continue
-            a, b = lens_interval(p0, dp, l0, dl, tri, 1, y0, y1, lo, hi, ops)
-            vlo, vhi = max(vlo, a), min(vhi, b)
-            if vlo > vhi:
-                events[EV_REJ_LENS] += 1
-                continue
-        if algorithm == ALG_DUAL and wpos:
-            lo, hi = dual_time_interval(p0, dp, l0, dl, tri, x0, x1, y0, y1, ulo, uhi, vlo, vhi, lo, hi, ops)
-            if lo > hi:
-                events[EV_REJ_DUAL] += 1
-                continue
-        if algorithm == ALG_TWO_STAGE:
-            if wpos:  # Wu13 §3.4 (stage 2): time bounds linear in u (x axis) and v (y axis)
-                l_c, l_s, h_c, h_s = two_stage_lines(p0, dp, l0, dl, tri, 0, x0, x1, ulo, uhi, lo, hi, ops)
-                m_c, m_s, k_c, k_s = two_stage_lines(p0, dp, l0, dl, tri, 1, y0, y1, vlo, vhi, lo, hi, ops)
-            else:
-                l_c, l_s, h_c, h_s = lo, 0.0, hi, 0.0
-                m_c, m_s, k_c, k_s = lo, 0.0, hi, 0.0
-            lo = max(lo, min(l_c + l_s * ulo, l_c + l_s * uhi), min(m_c + m_s * vlo, m_c + m_s * vhi))
-            hi = min(hi, max(h_c + h_s * ulo, h_c + h_s * uhi), max(k_c + k_s * vlo, k_c + k_s * vhi))
-            ops[OP_MADD] += 8
-            ops[OP_CMP] += 8
-            if lo > hi:
-                events[EV_REJ_TWO] += 1
-                continue
-            lines[i, 0] = l_c - LINE_F32_REL * (abs(l_c) + abs(l_s))
-            lines[i, 1] = l_s
-            lines[i, 2] = h_c + LINE_F32_REL * (abs(h_c) + abs(h_s))
-            lines[i, 3] = h_s
-            lines[i, 4] = m_c - LINE_F32_REL * (abs(m_c) + abs(m_s))
-            lines[i, 5] = m_s
-            lines[i, 6] = k_c + LINE_F32_REL * (abs(k_c) + abs(k_s))
-            lines[i, 7] = k_s
-        zl, zh = -1.0, 1.0
-        if wpos:
-            zl, zh = np.inf, -np.inf
-            for s in range(2):
-                t = lo if s == 0 else hi
-                for k in range(3):
-                    z = (p0[tri, k, 2] + t * dp[tri, k, 2]) / (p0[tri, k, 3] + t * dp[tri, k, 3])
-                    zl = min(zl, z)
-                    zh = max(zh, z)
-            if (fl & FLAG_PLANE) != 0:
-                w_lo, w_hi = plane_w_bounds(plane_n, plane_d, tri, x0, x1, y0, y1, lo, hi, ops)
-                # z/w = c1 + c0 / w grows with w (c0 < 0)
-                if w_hi < np.inf:
-                    zh = min(zh, depth_c1 + depth_c0 / w_hi)
-                if w_lo > 0.0:
-                    zl = max(zl, depth_c1 + depth_c0 / w_lo)
-            pad = 1e-6 * (1.0 + abs(zl) + abs(zh))
-            zl = max(-1.0, zl - pad)
-            zh = min(1.0, zh + pad)
-            ops[OP_MADD] += 12
-            ops[OP_RCP] += 6
-            ops[OP_MUL] += 6
-            ops[OP_CMP] += 12
-        ops[OP_CMP] += 6
-        if ulo > uhi or vlo > vhi:
-            events[EV_REJ_LENS] += 1
-            continue
-        out_keep[i] = True
-        events[EV_ACCEPT] += 1
-        t_lo[i] = lo
-        t_hi[i] = hi
-        u_lo[i] = ulo
-        u_hi[i] = uhi
-        v_lo[i] = vlo
-        v_hi[i] = vhi
-        z_lo[i] = zl
-        z_hi[i] = zh
+            out_keep[i] = True
+            events[EV_ACCEPT] += 1
+            t_lo[i] = lo
+            t_hi[i] = hi
+            u_lo[i] = ulo
+            u_hi[i] = uhi
+            v_lo[i] = vlo
+            v_hi[i] = vhi
+            z_lo[i] = zl
+            z_hi[i] = zh
 
-
+    return tile_test_kernel
 
 
 class TileTest:
@@ -251,13 +269,13 @@ class TileTest:
         t = self.table
         h = self.extension if alg.NAME == "hull" else _NO_HULLS
         cfg = self.config
-        tile_test_kernel(tiles["tri"], tiles["tx"], tiles["ty"], self.tile_size, self.width, self.height,
-                         ALGORITHM_CODES[alg.NAME], cfg.edge_test, cfg.edge_solver == "quadratic", cfg.gamma == "tile",
-                         cfg.lens_bounds, self.clips,
-                         t.p0, t.dp, t.l0, t.dl, t.t_span, t.flags, t.edge_f, t.edge_h, t.edge_gamma, t.edge_g,
-                         t.edge_fg, t.edge_abs, t.plane_n, t.plane_d, h.hull, h.hull_n, h.hull_off, self.tuples,
-                         self.depth_c1, self.depth_c0, keep, *iv, ext_out.get("lines", _NO_LINES),
-                         ext_out.get("mask", _NO_MASKS), ops, events)
+        kernel = tile_test_kernel_for(ALGORITHM_CODES[alg.NAME], cfg.edge_solver == "quadratic")
+        kernel(tiles["tri"], tiles["tx"], tiles["ty"], self.tile_size, self.width, self.height, cfg.edge_test,
+               cfg.gamma == "tile", cfg.lens_bounds, self.clips,
+               t.p0, t.dp, t.l0, t.dl, t.t_span, t.flags, t.edge_f, t.edge_h, t.edge_gamma, t.edge_g,
+               t.edge_fg, t.edge_abs, t.plane_n, t.plane_d, h.hull, h.hull_n, h.hull_off, self.tuples,
+               self.depth_c1, self.depth_c0, keep, *iv, ext_out.get("lines", _NO_LINES),
+               ext_out.get("mask", _NO_MASKS), ops, events)
         if self.exact_time:
             motion_only = ((t.flags & FLAG_WPOS) != 0) & ((t.flags & FLAG_LENS) == 0)
             cleared = exact_kernel(tiles["tri"], tiles["tx"], tiles["ty"], motion_only, t.p0, t.dp, keep, iv[0], iv[1],

@@ -5,7 +5,7 @@ triangle's moving, defocused screen bounds is kept with t^ its whole time
 span within the clip planes: the baseline of Wu13 and Munkberg11 against
 which the sample test efficiency of the other tests is measured. z^ still
 comes from the vertex depths (Nilsson12 App. A). Its branch of
-``units.tile_test.tile_test_kernel`` only bounds z^.
+``units.tile_test.tile_test_kernel_for`` only bounds z^.
 """
 
 from __future__ import annotations

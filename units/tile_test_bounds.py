@@ -1,6 +1,6 @@
 """The tile test's shared bounds, which the culling algorithms (``units.culling``) combine.
 
-Part of the tile test unit (docs/pipeline.md §2.3); ``units.tile_test.tile_test_kernel``
+Part of the tile test unit (docs/pipeline.md §2.3); ``units.tile_test.tile_test_kernel_for``
 applies them per (triangle, tile) record. The bounds:
 
 * t^ from the moving axis-aligned box in 2DH against the four tile frustum

@@ -8,7 +8,7 @@ planes (Munkberg11 §4.1, eq. 1-2), narrowed by the linearized moving edges
 exact quadratic edge equations (``units.tile_test_quadratic``), then by the
 box again over the narrowed span; with ``lens_bounds``, u^ and v^ from the
 vertices at the ends of t^. The bounds are those of ``units.tile_test_bounds``;
-its branch of ``units.tile_test.tile_test_kernel`` applies them.
+its branch of ``units.tile_test.tile_test_kernel_for`` applies them.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ stage 2 bounds time by two lines in u (x axis) and two in v (y axis)
 narrowed to what the lines allow over u^ and v^, and each record carries
 the lines (``lines``, its tile-record extension), which the sample tester
 tests per sample (its ``lines`` filter). Its branch of
-``units.tile_test.tile_test_kernel`` runs the stages.
+``units.tile_test.tile_test_kernel_for`` runs the stages.
 """
 
 from __future__ import annotations
