@@ -130,7 +130,12 @@ class Workload:
     @classmethod
     def from_settings(cls, path: Path, data: Any, arch: ArchConfig, image: dict[str, Any]) -> "Workload":
         """The workload of a kind with a file schema whose image settings are keys of its file of the same
-        names: ``data`` with ``image`` applied, kept as :attr:`settings_file`."""
+        names: ``data`` with ``image`` applied, kept as :attr:`settings_file`. An image setting its file
+        has no key for is refused in one line."""
+        unknown = sorted(set(image) - {f.name for f in dataclasses.fields(data)})
+        if unknown:
+            raise UserError(f"{path}: a {cls.kind} workload has no image setting {', '.join(unknown)}; set what "
+                            "it stands for in the file")
         self = cls(path, arch)
         self.settings_file = dataclasses.replace(data, **image)
         return self

@@ -6,6 +6,7 @@ import json
 import re
 import sys
 import tomllib
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -240,3 +241,20 @@ def test_the_docs_list_each_kind_s_file_keys(negative):
     text = workload_kinds()
     assert "### `scene`" in text and "### `negative`" in text
     assert "| `scene` | string | required | the scene file whose negative is drawn, relative to this file |" in text
+
+
+def test_from_settings_applies_the_image_settings_its_file_has_and_refuses_others_in_one_line():
+    @dataclasses.dataclass(frozen=True)
+    class Settings:
+        spp: int = 4
+        seed: int = 0
+
+    class Kind(W.Workload):
+        kind = "settings-test"
+
+    w = Kind.from_settings(Path("f.toml"), Settings(), load_arch(), {"spp": 16})
+    assert w.settings_file == Settings(spp=16, seed=0)
+    with pytest.raises(UserError) as e:
+        Kind.from_settings(Path("f.toml"), Settings(), load_arch(), {"width": 40, "spp": 16})
+    assert str(e.value) == ("f.toml: a settings-test workload has no image setting width; set what it stands "
+                            "for in the file")

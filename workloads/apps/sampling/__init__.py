@@ -632,10 +632,6 @@ class Sampling(Workload):
 
     @classmethod
     def load(cls, path, data: Settings, arch, image: dict[str, int]) -> "Sampling":
-        other = sorted(set(image) - {"spp", "seed"})
-        if other:
-            raise UserError(f"{path}: a sampling workload takes no image setting {', '.join(other)}; set its "
-                            "resolution in the file")
         return cls.from_settings(path, data, arch, image)
 
     def check(self, variants=None, *, reference_spp=None) -> str:
