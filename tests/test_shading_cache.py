@@ -26,8 +26,8 @@ from pipeline_sim.render import RenderPass, run_pass
 from pipeline_sim.pass_state import PassState
 from pipeline_sim.shaders import (IN_B, IN_G, IN_PX, IN_PY, IN_R, IN_T, IN_TRIANGLE, IN_U, IN_V, IN_X, IN_Y,
                                   N_INPUTS, standard_shader)
-from units.shading_cache import (EVENTS, REPL_FIFO, REPL_LRU, Shading, cache_kernel, deliver_colors,
-                                 first_sample_of_request, store_requests)
+from units.shading_cache import (EVENTS, REPL_FIFO, REPL_LRU, Shading, cache_kernel, cache_scratch, deliver_colors,
+                                 store_requests)
 
 EV = {name: i for i, name in enumerate(EVENTS)}
 
@@ -140,34 +140,34 @@ class KernelCache:
 
     def run(self, tri, b0, b1, b2, keys):
         n = len(tri)
-        out_color = np.full((n, 4), -99.0, np.float32)
-        sample_req = np.empty(n, np.int32)
-        req_entry = np.empty(n, np.int32)
-        req_tri = np.empty(n, np.int32)
-        req_l = np.empty((3, n), np.float64)
+        entries = len(self.entry_req)
+        # scratch longer than the batch, as Shading keeps it: the kernel must use only its first rows
+        keys_buf, sample_src, req_entry, req_tri, req_l, req_sample = cache_scratch(n + 5)
         ops = np.zeros(N_OPS, np.int64)
         ev = np.zeros(len(EVENTS), np.int64)
         nreq, self.clock = cache_kernel(tri, b0, b1, b2, self.ref, self.rate, self.grid_w, self.grid_h,
-                                        self.tags, self.stamps, self.entry_req, self.entry_color, self.clock,
-                                        self.repl, out_color, sample_req, req_entry, req_tri, req_l, ops, ev)
+                                        self.tags, self.stamps, self.entry_req, self.clock, self.repl, keys_buf,
+                                        sample_src, req_entry, req_tri, req_l, req_sample, ops, ev)
         self.events += ev
         # classify samples: a miss opens the next request; a hit points at an
-        # earlier request of this batch, or (-1) copied a stored color
+        # earlier request of this batch, or at an entry's stored color
         hit = np.zeros(n, bool)
         first_of_req = []
         for i in range(n):
-            r = int(sample_req[i])
-            if r == len(first_of_req):
+            src = int(sample_src[i])
+            if src == entries + len(first_of_req):
+                r = len(first_of_req)
                 first_of_req.append(i)
-                assert req_tri[r] == tri[i]
+                assert req_tri[r] == tri[i] and req_sample[r] == i
             else:
                 hit[i] = True
-                if r >= 0:
+                if src >= entries:
+                    r = src - entries
                     assert r < len(first_of_req)
                     assert keys[first_of_req[r]] == keys[i], "within-batch hit on another key"
                 else:
-                    np.testing.assert_array_equal(out_color[i], encode(keys[i]),
-                                                  err_msg="hit returned another key's color")
+                    np.testing.assert_array_equal(self.entry_color[src], encode(keys[i]),
+                                                  err_msg="hit on another key's color")
         assert nreq == len(first_of_req) == ev[EV["misses"]] == ev[EV["shader_executions"]]
         for r in range(nreq):  # emulate Shading.run: last request of an entry wins
             self.entry_color[req_entry[r]] = encode(keys[first_of_req[r]])
@@ -481,17 +481,6 @@ def test_triangles_behind_reference_camera_keep_their_own_color():
     np.testing.assert_array_equal(small.image, big.image)
 
 
-@given(st.lists(st.integers(-1, 6), min_size=0, max_size=60))
-def test_first_sample_of_request_against_a_search(refs):
-    sample_req = np.array(refs, np.int32)
-    nreq = int(sample_req.max(initial=-1)) + 1
-    first = np.empty(nreq, np.int64)
-    first_sample_of_request(sample_req, first)
-    for r in range(nreq):
-        hits = [i for i, q in enumerate(refs) if q == r]
-        assert first[r] == (hits[0] if hits else -1)
-
-
 @given(st.lists(st.integers(-1, 5), min_size=0, max_size=40))
 def test_store_requests_keeps_each_entrys_last_request(entries):
     req_entry = np.array(entries, np.int32)
@@ -508,16 +497,13 @@ def test_store_requests_keeps_each_entrys_last_request(entries):
             assert entry_req[e] == -1
 
 
-@given(st.lists(st.integers(-1, 6), min_size=0, max_size=60))
+@given(st.lists(st.integers(0, 6), min_size=0, max_size=60))
 def test_deliver_colors_against_fancy_indexing(refs):
-    sample_req = np.array(refs, np.int32)
-    shaded = np.arange(28, dtype=np.float32).reshape(7, 4) + 0.5
+    sample_src = np.array(refs, np.int32)
+    palette = np.arange(28, dtype=np.float32).reshape(7, 4) + 0.5
     color = np.full((len(refs), 4), -3.0, np.float32)
-    deliver_colors(sample_req, shaded, color)
-    expected = np.full((len(refs), 4), -3.0, np.float32)
-    has = sample_req >= 0
-    expected[has] = shaded[sample_req[has]]
-    np.testing.assert_array_equal(color, expected)
+    deliver_colors(sample_src, palette, color)
+    np.testing.assert_array_equal(color, palette[sample_src])
 
 
 @nb.njit
