@@ -232,6 +232,142 @@ def test_set_associative_matches_reference_with_observed_sets(policy, entries, w
     assert kc.events[EV["evictions"]] == rc.evictions
 
 
+class DictOfSetsCache:
+    """A set-associative cache in plain Python: ``sets[s]`` maps each resident key to its stamp (its last
+    use under LRU, its fill under FIFO); a full set evicts its smallest stamp. ``fresh`` maps the keys
+    filled in the current batch to their request number."""
+
+    def __init__(self, nsets, ways, policy, set_of):
+        self.sets = {s: {} for s in range(nsets)}
+        self.ways, self.policy, self.set_of = ways, policy, set_of
+        self.time = 0
+        self.hits = self.misses = self.evictions = 0
+
+    def batch(self, stream):
+        """``stream``: keys, None for a sample with no cell. Returns each sample's color source,
+        ("request", r) or ("stored", key), and the batch's requests (their keys, None: uncached)."""
+        sources, requests, fresh = [], [], {}
+        for key in stream:
+            self.time += 1
+            if key is None:
+                self.misses += 1
+                sources.append(("request", len(requests)))
+                requests.append(None)
+                continue
+            resident = self.sets[self.set_of(key)]
+            if key in resident:
+                self.hits += 1
+                if self.policy == "lru":
+                    resident[key] = self.time
+                sources.append(("request", fresh[key]) if key in fresh else ("stored", key))
+                continue
+            self.misses += 1
+            if len(resident) == self.ways:
+                victim = min(resident, key=resident.get)
+                del resident[victim]
+                fresh.pop(victim, None)
+                self.evictions += 1
+            resident[key] = self.time
+            fresh[key] = len(requests)
+            sources.append(("request", len(requests)))
+            requests.append(key)
+        return sources, requests
+
+
+def vertex_cell_scene(rng, ntri, rate, spread):
+    """Degenerate reference triangles whose vertices sit at cell centres, so a sample with barycentrics
+    (1, 0, 0), (0, 1, 0) or (0, 0, 1) sees its vertex exactly and its key (triangle, cx, cy) is known
+    without rounding; one more triangle lies behind the reference camera (no cell: key None)."""
+    cells = rng.integers(-spread, spread, (ntri, 3, 2))
+    ref = np.ones((ntri + 1, 3, 3), np.float32)
+    ref[:ntri, :, :2] = (cells + 0.5) * rate
+    ref[ntri, :, 2] = -1.0
+    keys = {(t, k): (t, int(cells[t, k, 0]), int(cells[t, k, 1])) for t in range(ntri) for k in range(3)}
+    keys.update({(ntri, k): None for k in range(3)})
+    return ref, keys
+
+
+def run_stream(rng, choices, n):
+    """``n`` samples as (triangle, vertex): runs of one choice, of length 1 to about 60."""
+    out = []
+    while len(out) < n:
+        pick = choices[int(rng.integers(len(choices)))]
+        length = int(rng.choice([1, 1, 2, int(rng.geometric(0.2)), int(rng.integers(20, 60))]))
+        out.extend([pick] * length)
+    return out[:n]
+
+
+@pytest.mark.parametrize("policy", ["lru", "fifo"])
+@pytest.mark.parametrize("entries,ways,rate,seed", [(8, 2, 1.0, 1), (16, 4, 2.0, 2), (12, 3, 0.5, 3), (32, 8, 1.0, 4),
+                                                    (4, 4, 1.0, 5)])
+def test_kernel_matches_a_dict_of_sets_cache_on_runs_and_conflicts(policy, entries, ways, rate, seed):
+    """Key streams with long runs of one key, set conflicts (more keys than entries) and samples with no
+    cell, cut into batches at random points (inside runs too): the kernel, its colors delivered and
+    stored as Shading.run does, against DictOfSetsCache: the same hits, misses and evictions, each
+    sample's color source (a request of its batch, or a stored color and whose), the same requests in
+    the same order, and each sample's delivered color that of its own key."""
+    rng = np.random.default_rng(seed)
+    ref, keys = vertex_cell_scene(rng, entries, rate, spread=40)  # three keys per triangle: conflicts
+    nsets = entries // ways
+    empty = lambda: (np.full((nsets, ways), -1, np.int64), np.zeros((nsets, ways), np.int64),  # noqa: E731
+                     np.full(entries, -1, np.int32))
+    repl = REPL_LRU if policy == "lru" else REPL_FIFO
+    unit = np.eye(3, dtype=np.float32)
+
+    def lookup(tags, stamps, entry_req, clock, picks):
+        tri = np.array([t for t, _ in picks], np.int32)
+        b = unit[[k for _, k in picks]].reshape(-1, 3)
+        scratch = cache_scratch(len(picks) + 3)
+        ops, ev = np.zeros(N_OPS, np.int64), np.zeros(len(EVENTS), np.int64)
+        nreq, clock = cache_kernel(tri, b[:, 0].copy(), b[:, 1].copy(), b[:, 2].copy(), ref, rate, 0, 0, tags,
+                                   stamps, entry_req, clock, repl, *scratch, ops, ev)
+        return nreq, clock, scratch, ev
+
+    def set_of(key, seen={}):  # observed: the row a key fills when looked up alone in an empty cache
+        if key not in seen:
+            tags = empty()[0]
+            pick = next(p for p, k in keys.items() if k == key)
+            lookup(tags, np.zeros_like(tags), np.full(entries, -1, np.int32), 0, [pick])
+            seen[key] = int(np.nonzero((tags != -1).any(axis=1))[0][0])
+        return seen[key]
+
+    def encode(key):
+        return np.array([-1, -1, -1, -1] if key is None else [key[0], key[1], key[2], 1], np.float32)
+
+    model = DictOfSetsCache(nsets, ways, policy, set_of)
+    tags, stamps, entry_req = empty()
+    entry_color = np.zeros((entries, 4), np.float32)
+    clock = 0
+    events = np.zeros(len(EVENTS), np.int64)
+    stored = 0
+    stream = run_stream(rng, list(keys), 3000)
+    cuts = np.unique(np.r_[0, rng.integers(0, len(stream), 25), len(stream)])
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        picks = stream[a:b]
+        sources, requests = model.batch([keys[p] for p in picks])
+        nreq, clock, (_, src, req_entry, _, _, req_sample), ev = lookup(tags, stamps, entry_req, clock, picks)
+        events += ev
+        n = len(picks)
+        assert nreq == len(requests)
+        assert [keys[picks[i]] for i in req_sample[:nreq]] == requests
+        got = [("request", int(s) - entries) if s >= entries else ("stored", tuple(int(v) for v in entry_color[s, :3]))
+               for s in src[:n]]
+        assert got == sources
+        stored += sum(kind == "stored" for kind, _ in sources)
+        shaded = np.array([encode(k) for k in requests], np.float32).reshape(-1, 4)
+        color = np.empty((n, 4), np.float32)
+        deliver_colors(src[:n], np.concatenate((entry_color, shaded)), color)
+        store_requests(req_entry[:nreq], shaded, entry_color, entry_req)
+        np.testing.assert_array_equal(color, [encode(keys[p]) for p in picks])
+    assert events[EV["lookups"]] == len(stream) and events[EV["hits"]] == model.hits
+    assert events[EV["misses"]] == events[EV["shader_executions"]] == model.misses
+    assert events[EV["evictions"]] == model.evictions
+    # the stream exercised what it is for: reuse, evictions, uncached samples, conflicts in a set
+    assert model.hits > 1000 and model.evictions > 50 and 100 < stored < model.hits
+    assert any(keys[p] is None for p in stream)
+    assert len({set_of(k) for k in keys.values() if k is not None}) == nsets
+
+
 def test_request_barycentrics_are_the_cell_centre():
     """A miss's barycentrics (req_l) project, through the reference camera, to
     the centre of the sample's shading cell (when that centre is inside)."""
