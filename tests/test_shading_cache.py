@@ -26,8 +26,8 @@ from pipeline_sim.render import RenderPass, run_pass
 from pipeline_sim.pass_state import PassState
 from pipeline_sim.shaders import (IN_B, IN_G, IN_PX, IN_PY, IN_R, IN_T, IN_TRIANGLE, IN_U, IN_V, IN_X, IN_Y,
                                   N_INPUTS, standard_shader)
-from units.shading_cache import (EVENTS, REPL_FIFO, REPL_LRU, Shading, cache_kernel, cache_scratch, deliver_colors,
-                                 store_requests)
+from units.shading_cache import (EVENTS, REPL_FIFO, REPL_LRU, Shading, cache_kernel, cache_scratch, cell_keys,
+                                 deliver_colors, store_requests)
 
 EV = {name: i for i, name in enumerate(EVENTS)}
 
@@ -230,6 +230,25 @@ def test_set_associative_matches_reference_with_observed_sets(policy, entries, w
         hit, _, _, _ = kc.run(tri, b0, b1, b2, keys)
         np.testing.assert_array_equal(hit, [rc.access(k) for k in keys])
     assert kc.events[EV["evictions"]] == rc.evictions
+
+
+@pytest.mark.parametrize("rate", [1.0, 2.0, 0.75])
+def test_cell_keys_against_float64_keys(rate):
+    """Each sample's key is its (triangle, cell) computed here in float64, packed as documented
+    (triangle << 42 | (cy + 2^20) << 21 | (cx + 2^20)); a sample behind the reference camera has none (-1)."""
+    rng, ref, _, _ = _setup(31, ntri=10, size=9.0, rate=rate)
+    ref = np.concatenate([ref, -ref[:2]])  # two triangles behind the reference camera (W < 0)
+    tri, b0, b1, b2, keys = make_stream(rng, ref[:10], 400, rate)
+    behind = rng.random(len(tri)) < 0.1
+    tri[behind] = 10 + rng.integers(0, 2, behind.sum())
+    got = np.full(len(tri) + 2, -7, np.int64)
+    n_in_front = cell_keys(tri, b0, b1, b2, ref, rate, got)
+    expect = [-1 if h else (t << 42) + ((cy + 2 ** 20) << 21) + cx + 2 ** 20
+              for h, (t, cx, cy) in zip(behind, keys)]
+    np.testing.assert_array_equal(got[:len(tri)], expect)
+    assert np.all(got[len(tri):] == -7)  # only the batch's rows are written
+    assert n_in_front == len(tri) - behind.sum() and 0 < behind.sum() < len(tri)
+    assert len({k for k in expect if k >= 0}) > 20
 
 
 class DictOfSetsCache:
