@@ -237,6 +237,7 @@ def test_cell_keys_against_float64_keys(rate):
     """Each sample's key is its (triangle, cell) computed here in float64, packed as documented
     (triangle << 42 | (cy + 2^20) << 21 | (cx + 2^20)); a sample behind the reference camera has none (-1)."""
     rng, ref, _, _ = _setup(31, ntri=10, size=9.0, rate=rate)
+    ref[::2, :, :2] -= 30 * ref[::2, :, 2:]  # half of them 30 pixels left of and above the screen: negative cells
     ref = np.concatenate([ref, -ref[:2]])  # two triangles behind the reference camera (W < 0)
     tri, b0, b1, b2, keys = make_stream(rng, ref[:10], 400, rate)
     behind = rng.random(len(tri)) < 0.1
@@ -248,7 +249,7 @@ def test_cell_keys_against_float64_keys(rate):
     np.testing.assert_array_equal(got[:len(tri)], expect)
     assert np.all(got[len(tri):] == -7)  # only the batch's rows are written
     assert n_in_front == len(tri) - behind.sum() and 0 < behind.sum() < len(tri)
-    assert len({k for k in expect if k >= 0}) > 20
+    assert len({k for k in expect if k >= 0}) > 20 and min(k[1] for k in keys) < 0 and min(k[2] for k in keys) < 0
 
 
 class DictOfSetsCache:
