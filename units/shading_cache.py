@@ -106,7 +106,8 @@ def cache_kernel(tri, b0, b1, b2, ref, rate, grid_w, grid_h, tags, stamps, entry
     n_evict = 0
     n_uncached = 0
     # the keys first, in a loop of their own: its iterations are independent, so the core overlaps them,
-    # and the lookups below are short enough to overlap too (together about twice as fast as one loop)
+    # and the lookups below are short enough to overlap too (measured on the default pass: about 10 ns a
+    # lookup, 15 with keys and lookups in one loop, 29 with that and an early-exit tag search as well)
     n_in_front = cell_keys(tri, b0, b1, b2, ref, rate, keys)
     for i in range(tri.shape[0]):
         tr = tri[i]
@@ -135,9 +136,9 @@ def cache_kernel(tri, b0, b1, b2, ref, rate, grid_w, grid_h, tags, stamps, entry
                 hit_way = w
         if hit_way >= 0:
             n_hit += 1
+            e = st * ways + hit_way
             if replacement == REPL_LRU:
                 stamps[st, hit_way] = clock
-            e = st * ways + hit_way
             r = entry_req[e]
             sample_src[i] = entries + r if r >= 0 else e
             continue
