@@ -26,8 +26,8 @@ from pipeline_sim.render import RenderPass, run_pass
 from pipeline_sim.pass_state import PassState
 from pipeline_sim.shaders import (IN_B, IN_G, IN_PX, IN_PY, IN_R, IN_T, IN_TRIANGLE, IN_U, IN_V, IN_X, IN_Y,
                                   N_INPUTS, standard_shader)
-from units.shading_cache import (EVENTS, REPL_FIFO, REPL_LRU, Shading, cache_kernel, deliver_colors,
-                                 first_sample_of_request, store_requests)
+from units.shading_cache import (EVENTS, REPL_FIFO, REPL_LRU, Shading, cache_kernel, cache_scratch, cell_keys,
+                                 deliver_colors, store_requests)
 
 EV = {name: i for i, name in enumerate(EVENTS)}
 
@@ -140,34 +140,34 @@ class KernelCache:
 
     def run(self, tri, b0, b1, b2, keys):
         n = len(tri)
-        out_color = np.full((n, 4), -99.0, np.float32)
-        sample_req = np.empty(n, np.int32)
-        req_entry = np.empty(n, np.int32)
-        req_tri = np.empty(n, np.int32)
-        req_l = np.empty((3, n), np.float64)
+        entries = len(self.entry_req)
+        # scratch longer than the batch, as Shading keeps it: the kernel must use only its first rows
+        keys_buf, sample_src, req_entry, req_tri, req_l, req_sample = cache_scratch(n + 5)
         ops = np.zeros(N_OPS, np.int64)
         ev = np.zeros(len(EVENTS), np.int64)
         nreq, self.clock = cache_kernel(tri, b0, b1, b2, self.ref, self.rate, self.grid_w, self.grid_h,
-                                        self.tags, self.stamps, self.entry_req, self.entry_color, self.clock,
-                                        self.repl, out_color, sample_req, req_entry, req_tri, req_l, ops, ev)
+                                        self.tags, self.stamps, self.entry_req, self.clock, self.repl, keys_buf,
+                                        sample_src, req_entry, req_tri, req_l, req_sample, ops, ev)
         self.events += ev
         # classify samples: a miss opens the next request; a hit points at an
-        # earlier request of this batch, or (-1) copied a stored color
+        # earlier request of this batch, or at an entry's stored color
         hit = np.zeros(n, bool)
         first_of_req = []
         for i in range(n):
-            r = int(sample_req[i])
-            if r == len(first_of_req):
+            src = int(sample_src[i])
+            if src == entries + len(first_of_req):
+                r = len(first_of_req)
                 first_of_req.append(i)
-                assert req_tri[r] == tri[i]
+                assert req_tri[r] == tri[i] and req_sample[r] == i
             else:
                 hit[i] = True
-                if r >= 0:
+                if src >= entries:
+                    r = src - entries
                     assert r < len(first_of_req)
                     assert keys[first_of_req[r]] == keys[i], "within-batch hit on another key"
                 else:
-                    np.testing.assert_array_equal(out_color[i], encode(keys[i]),
-                                                  err_msg="hit returned another key's color")
+                    np.testing.assert_array_equal(self.entry_color[src], encode(keys[i]),
+                                                  err_msg="hit on another key's color")
         assert nreq == len(first_of_req) == ev[EV["misses"]] == ev[EV["shader_executions"]]
         for r in range(nreq):  # emulate Shading.run: last request of an entry wins
             self.entry_color[req_entry[r]] = encode(keys[first_of_req[r]])
@@ -230,6 +230,162 @@ def test_set_associative_matches_reference_with_observed_sets(policy, entries, w
         hit, _, _, _ = kc.run(tri, b0, b1, b2, keys)
         np.testing.assert_array_equal(hit, [rc.access(k) for k in keys])
     assert kc.events[EV["evictions"]] == rc.evictions
+
+
+@pytest.mark.parametrize("rate", [1.0, 2.0, 0.75])
+def test_cell_keys_against_float64_keys(rate):
+    """Each sample's key is its (triangle, cell) computed here in float64, packed as documented
+    (triangle << 42 | (cy + 2^20) << 21 | (cx + 2^20)); a sample behind the reference camera has none (-1)."""
+    rng, ref, _, _ = _setup(31, ntri=10, size=9.0, rate=rate)
+    ref[::2, :, :2] -= 30 * ref[::2, :, 2:]  # half of them 30 pixels left of and above the screen: negative cells
+    ref = np.concatenate([ref, -ref[:2]])  # two triangles behind the reference camera (W < 0)
+    tri, b0, b1, b2, keys = make_stream(rng, ref[:10], 400, rate)
+    behind = rng.random(len(tri)) < 0.1
+    tri[behind] = 10 + rng.integers(0, 2, behind.sum())
+    got = np.full(len(tri) + 2, -7, np.int64)
+    n_in_front = cell_keys(tri, b0, b1, b2, ref, rate, got)
+    expect = [-1 if h else (t << 42) + ((cy + 2 ** 20) << 21) + cx + 2 ** 20
+              for h, (t, cx, cy) in zip(behind, keys)]
+    np.testing.assert_array_equal(got[:len(tri)], expect)
+    assert np.all(got[len(tri):] == -7)  # only the batch's rows are written
+    assert n_in_front == len(tri) - behind.sum() and 0 < behind.sum() < len(tri)
+    assert len({k for k in expect if k >= 0}) > 20 and min(k[1] for k in keys) < 0 and min(k[2] for k in keys) < 0
+
+
+class DictOfSetsCache:
+    """A set-associative cache in plain Python: ``sets[s]`` maps each resident key to its stamp (its last
+    use under LRU, its fill under FIFO); a full set evicts its smallest stamp. ``fresh`` maps the keys
+    filled in the current batch to their request number."""
+
+    def __init__(self, nsets, ways, policy, set_of):
+        self.sets = {s: {} for s in range(nsets)}
+        self.ways, self.policy, self.set_of = ways, policy, set_of
+        self.time = 0
+        self.hits = self.misses = self.evictions = 0
+
+    def batch(self, stream):
+        """``stream``: keys, None for a sample with no cell. Returns each sample's color source,
+        ("request", r) or ("stored", key), and the batch's requests (their keys, None: uncached)."""
+        sources, requests, fresh = [], [], {}
+        for key in stream:
+            self.time += 1
+            if key is None:
+                self.misses += 1
+                sources.append(("request", len(requests)))
+                requests.append(None)
+                continue
+            resident = self.sets[self.set_of(key)]
+            if key in resident:
+                self.hits += 1
+                if self.policy == "lru":
+                    resident[key] = self.time
+                sources.append(("request", fresh[key]) if key in fresh else ("stored", key))
+                continue
+            self.misses += 1
+            if len(resident) == self.ways:
+                victim = min(resident, key=resident.get)
+                del resident[victim]
+                fresh.pop(victim, None)
+                self.evictions += 1
+            resident[key] = self.time
+            fresh[key] = len(requests)
+            sources.append(("request", len(requests)))
+            requests.append(key)
+        return sources, requests
+
+
+def vertex_cell_scene(rng, ntri, rate, spread):
+    """Degenerate reference triangles whose vertices sit at cell centres, so a sample with barycentrics
+    (1, 0, 0), (0, 1, 0) or (0, 0, 1) sees its vertex exactly and its key (triangle, cx, cy) is known
+    without rounding; one more triangle lies behind the reference camera (no cell: key None)."""
+    cells = rng.integers(-spread, spread, (ntri, 3, 2))
+    ref = np.ones((ntri + 1, 3, 3), np.float32)
+    ref[:ntri, :, :2] = (cells + 0.5) * rate
+    ref[ntri, :, 2] = -1.0
+    keys = {(t, k): (t, int(cells[t, k, 0]), int(cells[t, k, 1])) for t in range(ntri) for k in range(3)}
+    keys.update({(ntri, k): None for k in range(3)})
+    return ref, keys
+
+
+def run_stream(rng, choices, n):
+    """``n`` samples as (triangle, vertex): runs of one choice, of length 1 to about 60."""
+    out = []
+    while len(out) < n:
+        pick = choices[int(rng.integers(len(choices)))]
+        length = int(rng.choice([1, 1, 2, int(rng.geometric(0.2)), int(rng.integers(20, 60))]))
+        out.extend([pick] * length)
+    return out[:n]
+
+
+@pytest.mark.parametrize("policy", ["lru", "fifo"])
+@pytest.mark.parametrize("entries,ways,rate,seed", [(8, 2, 1.0, 1), (16, 4, 2.0, 2), (12, 3, 0.5, 3), (32, 8, 1.0, 4),
+                                                    (4, 4, 1.0, 5)])
+def test_kernel_matches_a_dict_of_sets_cache_on_runs_and_conflicts(policy, entries, ways, rate, seed):
+    """Key streams with long runs of one key, set conflicts (more keys than entries) and samples with no
+    cell, cut into batches at random points (inside runs too): the kernel, its colors delivered and
+    stored as Shading.run does, against DictOfSetsCache: the same hits, misses and evictions, each
+    sample's color source (a request of its batch, or a stored color and whose), the same requests in
+    the same order, and each sample's delivered color that of its own key."""
+    rng = np.random.default_rng(seed)
+    ref, keys = vertex_cell_scene(rng, entries, rate, spread=40)  # three keys per triangle: conflicts
+    nsets = entries // ways
+    empty = lambda: (np.full((nsets, ways), -1, np.int64), np.zeros((nsets, ways), np.int64),  # noqa: E731
+                     np.full(entries, -1, np.int32))
+    repl = REPL_LRU if policy == "lru" else REPL_FIFO
+    unit = np.eye(3, dtype=np.float32)
+
+    def lookup(tags, stamps, entry_req, clock, picks):
+        tri = np.array([t for t, _ in picks], np.int32)
+        b = unit[[k for _, k in picks]].reshape(-1, 3)
+        scratch = cache_scratch(len(picks) + 3)
+        ops, ev = np.zeros(N_OPS, np.int64), np.zeros(len(EVENTS), np.int64)
+        nreq, clock = cache_kernel(tri, b[:, 0].copy(), b[:, 1].copy(), b[:, 2].copy(), ref, rate, 0, 0, tags,
+                                   stamps, entry_req, clock, repl, *scratch, ops, ev)
+        return nreq, clock, scratch, ev
+
+    def set_of(key, seen={}):  # observed: the row a key fills when looked up alone in an empty cache
+        if key not in seen:
+            tags = empty()[0]
+            pick = next(p for p, k in keys.items() if k == key)
+            lookup(tags, np.zeros_like(tags), np.full(entries, -1, np.int32), 0, [pick])
+            seen[key] = int(np.nonzero((tags != -1).any(axis=1))[0][0])
+        return seen[key]
+
+    def encode(key):
+        return np.array([-1, -1, -1, -1] if key is None else [key[0], key[1], key[2], 1], np.float32)
+
+    model = DictOfSetsCache(nsets, ways, policy, set_of)
+    tags, stamps, entry_req = empty()
+    entry_color = np.zeros((entries, 4), np.float32)
+    clock = 0
+    events = np.zeros(len(EVENTS), np.int64)
+    stored = 0
+    stream = run_stream(rng, list(keys), 3000)
+    cuts = np.unique(np.r_[0, rng.integers(0, len(stream), 25), len(stream)])
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        picks = stream[a:b]
+        sources, requests = model.batch([keys[p] for p in picks])
+        nreq, clock, (_, src, req_entry, _, _, req_sample), ev = lookup(tags, stamps, entry_req, clock, picks)
+        events += ev
+        n = len(picks)
+        assert nreq == len(requests)
+        assert [keys[picks[i]] for i in req_sample[:nreq]] == requests
+        got = [("request", int(s) - entries) if s >= entries else ("stored", tuple(int(v) for v in entry_color[s, :3]))
+               for s in src[:n]]
+        assert got == sources
+        stored += sum(kind == "stored" for kind, _ in sources)
+        shaded = np.array([encode(k) for k in requests], np.float32).reshape(-1, 4)
+        color = np.empty((n, 4), np.float32)
+        deliver_colors(src[:n], np.concatenate((entry_color, shaded)), color)
+        store_requests(req_entry[:nreq], shaded, entry_color, entry_req)
+        np.testing.assert_array_equal(color, [encode(keys[p]) for p in picks])
+    assert events[EV["lookups"]] == len(stream) and events[EV["hits"]] == model.hits
+    assert events[EV["misses"]] == events[EV["shader_executions"]] == model.misses
+    assert events[EV["evictions"]] == model.evictions
+    # the stream exercised what it is for: reuse, evictions, uncached samples, conflicts in a set
+    assert model.hits > 1000 and model.evictions > 50 and 100 < stored < model.hits
+    assert any(keys[p] is None for p in stream)
+    assert len({set_of(k) for k in keys.values() if k is not None}) == nsets
 
 
 def test_request_barycentrics_are_the_cell_centre():
@@ -481,17 +637,6 @@ def test_triangles_behind_reference_camera_keep_their_own_color():
     np.testing.assert_array_equal(small.image, big.image)
 
 
-@given(st.lists(st.integers(-1, 6), min_size=0, max_size=60))
-def test_first_sample_of_request_against_a_search(refs):
-    sample_req = np.array(refs, np.int32)
-    nreq = int(sample_req.max(initial=-1)) + 1
-    first = np.empty(nreq, np.int64)
-    first_sample_of_request(sample_req, first)
-    for r in range(nreq):
-        hits = [i for i, q in enumerate(refs) if q == r]
-        assert first[r] == (hits[0] if hits else -1)
-
-
 @given(st.lists(st.integers(-1, 5), min_size=0, max_size=40))
 def test_store_requests_keeps_each_entrys_last_request(entries):
     req_entry = np.array(entries, np.int32)
@@ -508,16 +653,13 @@ def test_store_requests_keeps_each_entrys_last_request(entries):
             assert entry_req[e] == -1
 
 
-@given(st.lists(st.integers(-1, 6), min_size=0, max_size=60))
+@given(st.lists(st.integers(0, 6), min_size=0, max_size=60))
 def test_deliver_colors_against_fancy_indexing(refs):
-    sample_req = np.array(refs, np.int32)
-    shaded = np.arange(28, dtype=np.float32).reshape(7, 4) + 0.5
+    sample_src = np.array(refs, np.int32)
+    palette = np.arange(28, dtype=np.float32).reshape(7, 4) + 0.5
     color = np.full((len(refs), 4), -3.0, np.float32)
-    deliver_colors(sample_req, shaded, color)
-    expected = np.full((len(refs), 4), -3.0, np.float32)
-    has = sample_req >= 0
-    expected[has] = shaded[sample_req[has]]
-    np.testing.assert_array_equal(color, expected)
+    deliver_colors(sample_src, palette, color)
+    np.testing.assert_array_equal(color, palette[sample_src])
 
 
 @nb.njit
