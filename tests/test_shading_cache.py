@@ -127,7 +127,7 @@ class KernelCache:
     after each batch every entry filled in the batch gets the color of its last
     request (here: the request's key, encoded) and its request link is cleared."""
 
-    def __init__(self, entries, ways, policy, ref, rate, grid_w, grid_h):
+    def __init__(self, entries, ways, policy, ref, rate):
         nsets = entries // ways
         self.tags = np.full((nsets, ways), -1, np.int64)
         self.stamps = np.zeros((nsets, ways), np.int64)
@@ -135,7 +135,7 @@ class KernelCache:
         self.entry_color = np.zeros((entries, 4), np.float32)
         self.clock = 0
         self.repl = REPL_LRU if policy == "lru" else REPL_FIFO
-        self.ref, self.rate, self.grid_w, self.grid_h = ref, rate, grid_w, grid_h
+        self.ref, self.rate = ref, rate
         self.events = np.zeros(len(EVENTS), np.int64)
 
     def run(self, tri, b0, b1, b2, keys):
@@ -145,7 +145,7 @@ class KernelCache:
         keys_buf, sample_src, req_entry, req_tri, req_l, req_sample = cache_scratch(n + 5)
         ops = np.zeros(N_OPS, np.int64)
         ev = np.zeros(len(EVENTS), np.int64)
-        nreq, self.clock = cache_kernel(tri, b0, b1, b2, self.ref, self.rate, self.grid_w, self.grid_h,
+        nreq, self.clock = cache_kernel(tri, b0, b1, b2, self.ref, self.rate,
                                         self.tags, self.stamps, self.entry_req, self.clock, self.repl, keys_buf,
                                         sample_src, req_entry, req_tri, req_l, req_sample, ops, ev)
         self.events += ev
@@ -178,9 +178,7 @@ class KernelCache:
 def _setup(seed, ntri=8, size=7.0, rate=1.0, width=32, height=24):
     rng = np.random.default_rng(seed)
     ref = make_ref(rng, ntri, width, height, size)
-    grid_w = int(np.ceil(width / rate))
-    grid_h = int(np.ceil(height / rate))
-    return rng, ref, grid_w, grid_h
+    return rng, ref
 
 
 # --------------------------------------------------------------------------- #
@@ -190,8 +188,8 @@ def _setup(seed, ntri=8, size=7.0, rate=1.0, width=32, height=24):
 @pytest.mark.parametrize("entries", [1, 3, 8, 32])
 @pytest.mark.parametrize("rate", [1.0, 2.0])
 def test_fully_associative_matches_reference(policy, entries, rate):
-    rng, ref, gw, gh = _setup(entries * 7 + int(rate), rate=rate)
-    kc = KernelCache(entries, entries, policy, ref, rate, gw, gh)
+    rng, ref = _setup(entries * 7 + int(rate), rate=rate)
+    kc = KernelCache(entries, entries, policy, ref, rate)
     rc = RefCache(entries, entries, policy)
     for batch in range(5):
         tri, b0, b1, b2, keys = make_stream(rng, ref, int(rng.integers(1, 150)), rate)
@@ -211,20 +209,20 @@ def test_set_associative_matches_reference_with_observed_sets(policy, entries, w
     """The set of a key is observed by looking it up alone in an empty cache;
     with that mapping, each set must behave as an independent LRU/FIFO cache."""
     rate = 1.0
-    rng, ref, gw, gh = _setup(entries + ways, rate=rate)
+    rng, ref = _setup(entries + ways, rate=rate)
     streams = [make_stream(rng, ref, 120, rate) for _ in range(4)]
     probe_set = {}
     for tri, b0, b1, b2, keys in streams:
         for i, key in enumerate(keys):
             if key in probe_set:
                 continue
-            probe = KernelCache(entries, ways, policy, ref, rate, gw, gh)
+            probe = KernelCache(entries, ways, policy, ref, rate)
             probe.run(tri[i:i + 1], b0[i:i + 1], b1[i:i + 1], b2[i:i + 1], [key])
             rows = np.nonzero((probe.tags != -1).any(axis=1))[0]
             assert len(rows) == 1
             probe_set[key] = int(rows[0])
     assert len(set(probe_set.values())) > 1
-    kc = KernelCache(entries, ways, policy, ref, rate, gw, gh)
+    kc = KernelCache(entries, ways, policy, ref, rate)
     rc = RefCache(entries, ways, policy, set_of=probe_set.__getitem__)
     for tri, b0, b1, b2, keys in streams:
         hit, _, _, _ = kc.run(tri, b0, b1, b2, keys)
@@ -236,7 +234,7 @@ def test_set_associative_matches_reference_with_observed_sets(policy, entries, w
 def test_cell_keys_against_float64_keys(rate):
     """Each sample's key is its (triangle, cell) computed here in float64, packed as documented
     (triangle << 42 | (cy + 2^20) << 21 | (cx + 2^20)); a sample behind the reference camera has none (-1)."""
-    rng, ref, _, _ = _setup(31, ntri=10, size=9.0, rate=rate)
+    rng, ref = _setup(31, ntri=10, size=9.0, rate=rate)
     ref[::2, :, :2] -= 30 * ref[::2, :, 2:]  # half of them 30 pixels left of and above the screen: negative cells
     ref = np.concatenate([ref, -ref[:2]])  # two triangles behind the reference camera (W < 0)
     tri, b0, b1, b2, keys = make_stream(rng, ref[:10], 400, rate)
@@ -339,7 +337,7 @@ def test_kernel_matches_a_dict_of_sets_cache_on_runs_and_conflicts(policy, entri
         b = unit[[k for _, k in picks]].reshape(-1, 3)
         scratch = cache_scratch(len(picks) + 3)
         ops, ev = np.zeros(N_OPS, np.int64), np.zeros(len(EVENTS), np.int64)
-        nreq, clock = cache_kernel(tri, b[:, 0].copy(), b[:, 1].copy(), b[:, 2].copy(), ref, rate, 0, 0, tags,
+        nreq, clock = cache_kernel(tri, b[:, 0].copy(), b[:, 1].copy(), b[:, 2].copy(), ref, rate, tags,
                                    stamps, entry_req, clock, repl, *scratch, ops, ev)
         return nreq, clock, scratch, ev
 
@@ -392,8 +390,8 @@ def test_request_barycentrics_are_the_cell_centre():
     """A miss's barycentrics (req_l) project, through the reference camera, to
     the centre of the sample's shading cell (when that centre is inside)."""
     rate = 2.0
-    rng, ref, gw, gh = _setup(21, size=14.0, rate=rate)
-    kc = KernelCache(16, 16, "lru", ref, rate, gw, gh)
+    rng, ref = _setup(21, size=14.0, rate=rate)
+    kc = KernelCache(16, 16, "lru", ref, rate)
     tri, b0, b1, b2, keys = make_stream(rng, ref, 300, rate, require_centre=True)
     _, req_l, req_keys, req_tri = kc.run(tri, b0, b1, b2, keys)
     assert len(req_keys) > 10
@@ -409,11 +407,11 @@ def test_request_barycentrics_are_the_cell_centre():
 def test_hit_rate_rises_with_cache_size():
     """LRU is a stack algorithm: for a fully associative cache the hits can only
     grow with the size; on a stream with reuse they must strictly grow overall."""
-    rng, ref, gw, gh = _setup(5)
+    rng, ref = _setup(5)
     stream = [make_stream(rng, ref, 200, 1.0) for _ in range(3)]
     hits = []
     for entries in (1, 2, 4, 8, 16, 32, 64, 128):
-        kc = KernelCache(entries, entries, "lru", ref, 1.0, gw, gh)
+        kc = KernelCache(entries, entries, "lru", ref, 1.0)
         for s in stream:
             kc.run(*s)
         hits.append(int(kc.events[EV["hits"]]))
@@ -429,7 +427,7 @@ def test_reference_w_nonpositive_never_hits_across_batches():
     ref[:, :, 0] = 1.0
     ref[:, :, 1] = 1.0
     ref[:, :, 2] = -1.0  # surface point behind the reference camera
-    kc = KernelCache(4, 4, "lru", ref, 1.0, 8, 8)
+    kc = KernelCache(4, 4, "lru", ref, 1.0)
     third = np.array([1 / 3], np.float32)
     for tr in (0, 1):
         kc.run(np.array([tr], np.int32), third, third, third, [(tr, 999, 999)])
@@ -479,7 +477,7 @@ def _batch(rng, tri, b0, b1, b2, npix, spp):
 @pytest.mark.parametrize("entries,ways,policy", [(4, 4, "lru"), (8, 2, "fifo"), (64, 8, "lru")])
 def test_cache_mode_color_is_shader_at_the_samples_request(entries, ways, policy):
     width, height, spp, rate = 32, 24, 4, 2.0
-    rng, ref, _, _ = _setup(entries + ways, ntri=6, size=14.0, rate=rate, width=width, height=height)
+    rng, ref = _setup(entries + ways, ntri=6, size=14.0, rate=rate, width=width, height=height)
     cfg = ShadingConfig(cache_entries=entries, cache_ways=ways, replacement=policy)
     unit = _shading_unit(cfg, "cache", rate, ref, width, height, spp, cell_shader, rng)
     execs = 0
@@ -495,7 +493,7 @@ def test_cache_mode_color_is_shader_at_the_samples_request(entries, ways, policy
 
 def test_per_sample_mode_shades_every_sample_once_at_its_own_point():
     width, height, spp = 16, 8, 4
-    rng, ref, _, _ = _setup(9, ntri=5, size=6.0, width=width, height=height)
+    rng, ref = _setup(9, ntri=5, size=6.0, width=width, height=height)
     calls = []
 
     def recording_shader(inputs, params, textures, out, append):
@@ -607,8 +605,8 @@ def test_cache_mode_in_the_pipeline_colors_follow_keys(monkeypatch, overrides):
         for i in range(len(b["tri"])):
             bc = np.array([b["b0"][i], b["b1"][i], b["b2"][i]], np.float32)
             key, margin = key_of(ref, int(b["tri"][i]), bc, rate)
-            # cells off the shading grid are merged into a border cell by the
-            # kernel (clamp to -1 / grid size): only on-grid cells are checked
+            # only cells of the screen's shading grid are checked (a cell off it is
+            # keyed alike, but its centre is off screen)
             if not (0 <= key[1] < grid_w and 0 <= key[2] < grid_h):
                 continue
             if margin < 1e-3 or not centre_inside(ref, key, rate):

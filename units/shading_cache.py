@@ -81,7 +81,7 @@ def cell_keys(tri, b0, b1, b2, ref, rate, keys):
 
 
 @nb.njit(cache=True)
-def cache_kernel(tri, b0, b1, b2, ref, rate, grid_w, grid_h, tags, stamps, entry_req, clock, replacement,
+def cache_kernel(tri, b0, b1, b2, ref, rate, tags, stamps, entry_req, clock, replacement,
                  keys, sample_src, req_entry, req_tri, req_l, req_sample, ops, events):
     """Shading-cache lookups in sample order (Nilsson12 §2, §8; Ragan-Kelley et al. 2011).
 
@@ -312,8 +312,6 @@ class Shading:
         self.entry_color = np.zeros((nsets * ways, channels), np.float32)
         self.clock = 0
         self.scratch = cache_scratch(0)  # the cache kernel's, grown to the largest batch
-        self.grid_w = int(np.ceil(draw.width / shading_rate))
-        self.grid_h = int(np.ceil(draw.height / shading_rate))
 
     def use_samples(self, samples) -> None:
         """Shade the next batches with ``samples`` (their screen region's; conservative mode reads none)."""
@@ -338,7 +336,7 @@ class Shading:
             keys, sample_src, req_entry, req_tri, req_l, req_sample = self.scratch
             nreq, self.clock = cache_kernel(
                 batch["tri"], batch["b0"], batch["b1"], batch["b2"], self.table.ref, self.shading_rate,
-                self.grid_w, self.grid_h, self.tags, self.stamps, self.entry_req, self.clock,
+                self.tags, self.stamps, self.entry_req, self.clock,
                 REPL_LRU if self.config.replacement == "lru" else REPL_FIFO, keys, sample_src, req_entry,
                 req_tri, req_l, req_sample, ops, events)
             first = req_sample[:nreq]
