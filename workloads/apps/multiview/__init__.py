@@ -214,7 +214,9 @@ def _screen_bounds(world0: np.ndarray, world1: np.ndarray, lens_box: tuple[float
     """Each triangle's pixel box (x0, x1, y0, y1), inclusive, over the shutter and a lens box (x_lo, x_hi,
     y_lo, y_hi world units): a vertex p seen from lens point L lies on the ray through the focus-plane
     point L + (p - L) F / -p_z, whose image position is monotonic in t (p linear in t, p_z < 0) and
-    linear in L, so the corners of t and of the lens box bound it."""
+    linear in L, so the corners of t and of the lens box bound it. Every vertex must lie in front of the
+    lens plane (p_z < 0 at both shutter ends), as the scene's do; the bounds are padded by a pixel
+    against rounding."""
     corners = np.array([(x, y) for x in lens_box[:2] for y in lens_box[2:]])
     pts = np.concatenate([world0, world1], axis=1)  # (N, 6, 3)
     scale = focus / -pts[:, :, 2]  # (N, 6)
