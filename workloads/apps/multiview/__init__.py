@@ -32,6 +32,7 @@ from pipeline_sim.output import finite_or_none
 from pipeline_sim.schema import key
 from pipeline_sim.settings import FORBID, count, number
 from pipeline_sim.workload import Workload, WorkloadResult
+from workloads.apps.raycast import ray_triangles
 
 # the camera line's centre camera: at the origin looking down -z, vertical field of view 45 degrees
 FOV_Y, NEAR, FAR = np.radians(45.0), 0.5, 40.0
@@ -232,8 +233,9 @@ def reference_view_images(s: Settings, layout: Layout, spp: int, seed: int = 1) 
     """Each view rendered on its own by numpy ray casting (independent of the 5D path): per pixel,
     ``spp`` rays from uniform points of the view's own lens (its window along the camera line times the
     aperture's height) through uniform points of the pixel on the focus plane, at uniform shutter
-    times; the nearest hit (Moller-Trumbore against the triangles moved to the ray's time) shaded as the
-    standard shader's Lambert, the clear colour where none. Returns (H, W, 4) images, left to right."""
+    times; the nearest hit (``raycast.ray_triangles`` against the triangles moved to the ray's time)
+    shaded as the standard shader's Lambert, the clear colour where none. Returns (H, W, 4) images, left
+    to right."""
     proj = projection(s.width / s.height)
     world0, world1, colors, normals = scene_triangles(s.motion)
     shade = colors * (LIGHT[7] + LIGHT[4:7] * np.maximum(0.0, normals @ -LIGHT_DIRECTION)[:, None, None])
@@ -260,17 +262,9 @@ def reference_view_images(s: Settings, layout: Layout, spp: int, seed: int = 1) 
             rows = slice(int(max(y0, 0)) * row, int(min(y1 + 1, h)) * row)
             sel = np.flatnonzero((px[rows] >= x0) & (px[rows] <= x1)) + rows.start
             tm = time[sel, None]
-            v0, v1, v2 = (world0[k, i] + tm * (world1[k, i] - world0[k, i]) for i in range(3))
-            e1, e2, ds, tvec = v1 - v0, v2 - v0, d[sel], lens[sel] - v0
-            pvec = np.cross(ds, e2)
-            det = np.einsum("ij,ij->i", e1, pvec)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                inv = 1.0 / det
-                a = np.einsum("ij,ij->i", tvec, pvec) * inv
-                qvec = np.cross(tvec, e1)
-                b = np.einsum("ij,ij->i", ds, qvec) * inv
-                dist = np.einsum("ij,ij->i", e2, qvec) * inv
-            hit = (det != 0) & (a >= 0) & (b >= 0) & (a + b <= 1) & (dist > 0) & (dist < best[sel])
+            dist, a, b, meets = ray_triangles(lens[sel], d[sel], *(world0[k, i] + tm * (world1[k, i] - world0[k, i])
+                                                                    for i in range(3)))
+            hit = meets & (dist > 0) & (dist < best[sel])
             a, b, at = a[hit, None], b[hit, None], sel[hit]
             best[at] = dist[hit]
             rgb[at] = (1 - a - b) * shade[k, 0] + a * shade[k, 1] + b * shade[k, 2]
