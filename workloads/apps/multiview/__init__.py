@@ -29,13 +29,15 @@ from pydantic import Field
 from pipeline_sim.config import ArchConfig, apply_overrides
 from pipeline_sim.errors import UserError
 from pipeline_sim.output import finite_or_none
+from pipeline_sim.scene import Camera
 from pipeline_sim.schema import key
 from pipeline_sim.settings import FORBID, count, number
 from pipeline_sim.workload import Workload, WorkloadResult
 from workloads.apps.raycast import ray_triangles
 
 # the camera line's centre camera: at the origin looking down -z, vertical field of view 45 degrees
-FOV_Y, NEAR, FAR = np.radians(45.0), 0.5, 40.0
+CAMERA = Camera("perspective", np.zeros(3), np.array([0.0, 0.0, -1.0]), np.array([0.0, 1.0, 0.0]), np.zeros(3),
+                np.array([0.0, 0.0, -1.0]), 45.0, 0.5, 40.0)
 CLEAR = (0.0, 0.0, 0.0, 1.0)
 # the standard shader's directional light (pipeline_sim.shaders.STANDARD_PARAMS): direction, colour, ambient
 LIGHT_DIRECTION = np.array([-0.4, -1.0, -0.6]) / np.linalg.norm([-0.4, -1.0, -0.6])
@@ -128,16 +130,6 @@ def sample_table(layout: Layout, seed: int) -> np.ndarray:
     return np.column_stack([s.x, s.y, s.u, s.v, s.t]).astype(np.float64)
 
 
-def projection(aspect: float) -> np.ndarray:
-    """The OpenGL perspective matrix of the centre camera (clip w = -z_eye)."""
-    f = 1.0 / np.tan(FOV_Y / 2.0)
-    m = np.zeros((4, 4))
-    m[0, 0], m[1, 1] = f / aspect, f
-    m[2, 2], m[2, 3] = (FAR + NEAR) / (NEAR - FAR), 2.0 * FAR * NEAR / (NEAR - FAR)
-    m[3, 2] = -1.0
-    return m
-
-
 def _grid(corner: np.ndarray, a: np.ndarray, b: np.ndarray, n: int, colors) -> tuple[np.ndarray, ...]:
     """A parallelogram corner + [0, 1] a + [0, 1] b cut into n x n cells of two triangles each, each cell
     one of ``colors`` in a checker; (2 n^2, 3, 3) positions and colours, (2 n^2, 3) normals (a x b)."""
@@ -194,7 +186,7 @@ def scene_draw(s: Settings, layout: Layout):
     lens shifts half_width (u) and aperture_height (v) world units per unit lens coordinate."""
     from pipeline_sim.draw import Draw, lens_shift
 
-    proj = projection(s.width / s.height)
+    proj = CAMERA.projection_matrix(s.width / s.height)
     world0, world1, colors, normals = scene_triangles(s.motion)
     n = len(world0)
     clip = [np.concatenate([w, np.ones((n, 3, 1))], axis=2) @ proj.T for w in (world0, world1)]
@@ -236,7 +228,7 @@ def reference_view_images(s: Settings, layout: Layout, spp: int, seed: int = 1) 
     times; the nearest hit (``raycast.ray_triangles`` against the triangles moved to the ray's time)
     shaded as the standard shader's Lambert, the clear colour where none. Returns (H, W, 4) images, left
     to right."""
-    proj = projection(s.width / s.height)
+    proj = CAMERA.projection_matrix(s.width / s.height)
     world0, world1, colors, normals = scene_triangles(s.motion)
     shade = colors * (LIGHT[7] + LIGHT[4:7] * np.maximum(0.0, normals @ -LIGHT_DIRECTION)[:, None, None])
     rng = np.random.default_rng(seed)

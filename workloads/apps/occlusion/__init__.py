@@ -26,12 +26,14 @@ from pydantic import Field
 
 from pipeline_sim.config import ArchConfig, apply_overrides
 from pipeline_sim.output import finite_or_none
+from pipeline_sim.scene import Camera
 from pipeline_sim.schema import key
 from pipeline_sim.settings import FORBID, count, number
 from pipeline_sim.workload import Workload, WorkloadResult
 
 # the camera: at the origin looking down -z, vertical field of view 50 degrees
-FOV_Y, NEAR, FAR = np.radians(50.0), 1.0, 40.0
+CAMERA = Camera("perspective", np.zeros(3), np.array([0.0, 0.0, -1.0]), np.array([0.0, 1.0, 0.0]), np.zeros(3),
+                np.array([0.0, 0.0, -1.0]), 50.0, 1.0, 40.0)
 OCCLUDER_DISTANCE = 6.0
 OCCLUDER_HALF = (1.5, 1.0)  # half width and height of the occluding wall, world units
 PROXY_DEPTHS = (8.0, 12.0)  # distances of the proxies' centres
@@ -69,16 +71,6 @@ class Settings:
     time_slices: Boxes = key("z-cull time slices of the occlusion-rate table", default_factory=lambda: [1, 4, 8])
     lens_boxes: Boxes = key("z-cull lens boxes per axis of the occlusion-rate table",
                             default_factory=lambda: [1, 2, 4])
-
-
-def projection(aspect: float) -> np.ndarray:
-    """The OpenGL perspective matrix of the workload's camera (clip w = -z_eye)."""
-    f = 1.0 / np.tan(FOV_Y / 2.0)
-    m = np.zeros((4, 4))
-    m[0, 0], m[1, 1] = f / aspect, f
-    m[2, 2], m[2, 3] = (FAR + NEAR) / (NEAR - FAR), 2.0 * FAR * NEAR / (NEAR - FAR)
-    m[3, 2] = -1.0
-    return m
 
 
 def proxy_boxes(s: Settings) -> tuple[np.ndarray, np.ndarray]:
@@ -153,7 +145,7 @@ class Occlusion(Workload):
         from pipeline_sim.render import RenderPass
 
         s = self.settings_file
-        proj = projection(s.width / s.height)
+        proj = CAMERA.projection_matrix(s.width / s.height)
         hx, hy = OCCLUDER_HALF
         wall = np.array([[[-hx, -hy, 0.0], [hx, -hy, 0.0], [hx, hy, 0.0]],
                          [[-hx, -hy, 0.0], [hx, hy, 0.0], [-hx, hy, 0.0]]]) + [0.0, 0.0, -OCCLUDER_DISTANCE]
