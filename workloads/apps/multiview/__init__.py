@@ -19,6 +19,7 @@ over one view, and each view's error against a ray-cast reference from its own c
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Annotated
 
@@ -184,22 +185,16 @@ def scene_triangles(motion: float) -> tuple[np.ndarray, ...]:
 def scene_draw(s: Settings, layout: Layout):
     """The scene as one draw on ``layout``'s oblong lens: clip-space triangles of the centre camera and
     lens shifts half_width (u) and aperture_height (v) world units per unit lens coordinate."""
-    from pipeline_sim.draw import Draw, lens_shift
+    from pipeline_sim.draw import draw_from_world
 
-    proj = CAMERA.projection_matrix(s.width / s.height)
     world0, world1, colors, normals = scene_triangles(s.motion)
-    n = len(world0)
-    clip = [np.concatenate([w, np.ones((n, 3, 1))], axis=2) @ proj.T for w in (world0, world1)]
-    lens_x, lens_y = np.zeros((n, 3, 2)), np.zeros((n, 3, 2))
-    for t in (0, 1):
-        lens_x[:, :, t] = lens_shift(proj, clip[t][:, :, 3], layout.half_width, s.focus_distance)[0]
-        lens_y[:, :, t] = lens_shift(proj, clip[t][:, :, 3], s.aperture_height, s.focus_distance)[1]
+    draw = draw_from_world(world0, world1, CAMERA.projection_matrix(s.width / s.height), width=s.width,
+                           height=s.height, lens_radius=(layout.half_width, s.aperture_height),
+                           focus=s.focus_distance, color=colors)
     normals = np.repeat(normals[:, None, :], 3, axis=1)
-    return Draw(q=clip[0], r=clip[1], lens_x=lens_x, lens_y=lens_y,
-                pos=np.stack([world0, world1]).astype(np.float32),
-                nrm=np.stack([normals, normals]).astype(np.float32), color=colors.astype(np.float32),
-                material=np.ones(n, np.int32), object_id=np.zeros(n, np.int32), width=s.width, height=s.height,
-                depth_w=(float(-proj[2, 2]), float(proj[2, 3])))
+    return dataclasses.replace(draw, pos=np.stack([world0, world1]).astype(np.float32),
+                               nrm=np.stack([normals, normals]).astype(np.float32),
+                               material=np.ones(draw.n, np.int32))
 
 
 def _screen_bounds(world0: np.ndarray, world1: np.ndarray, lens_box: tuple[float, float, float, float],

@@ -94,19 +94,11 @@ def proxy_boxes(s: Settings) -> tuple[np.ndarray, np.ndarray]:
 
 def _draw(world0: np.ndarray, world1: np.ndarray, s: Settings, proj: np.ndarray, query: str = "samples"):
     """A draw of world-space triangles (N, 3, 3) at shutter open and close, seen by the camera."""
-    from pipeline_sim.draw import draw_from_clip, lens_shift
+    from pipeline_sim.draw import draw_from_world
 
-    clip = []
-    for world in (world0, world1):
-        hom = np.concatenate([world, np.ones(world.shape[:2] + (1,))], axis=2)
-        clip.append(hom @ proj.T)
-    n = len(world0)
-    lens_x, lens_y = np.zeros((n, 3, 2)), np.zeros((n, 3, 2))
-    if s.lens_radius > 0:
-        for t in (0, 1):
-            lens_x[:, :, t], lens_y[:, :, t] = lens_shift(proj, clip[t][:, :, 3], s.lens_radius, s.focus_distance)
-    draw = draw_from_clip(clip[0], clip[1], lens_x, lens_y, width=s.width, height=s.height)
-    return dataclasses.replace(draw, depth_w=(float(-proj[2, 2]), float(proj[2, 3])), query=query)
+    draw = draw_from_world(world0, world1, proj, width=s.width, height=s.height, lens_radius=s.lens_radius,
+                           focus=s.focus_distance)
+    return dataclasses.replace(draw, query=query)
 
 
 class Occlusion(Workload):

@@ -214,10 +214,6 @@ def light_matrices(s: Settings, tuples: np.ndarray) -> np.ndarray:
     return out
 
 
-def _clip(world: np.ndarray, matrix: np.ndarray) -> np.ndarray:
-    return np.concatenate([world, np.ones(world.shape[:-1] + (1,))], axis=-1) @ matrix.T
-
-
 def _normals(world: np.ndarray) -> np.ndarray:
     n = np.cross(world[:, 1] - world[:, 0], world[:, 2] - world[:, 0])
     n /= np.linalg.norm(n, axis=1, keepdims=True)
@@ -229,27 +225,16 @@ def make_draw(meshes: list[Mesh], camera: Camera, width: int, height: int, *, le
     """A draw of ``meshes`` seen by ``camera``: the vertices at ``times`` (shutter open and close), with
     a thin lens of ``lens_radius`` focused at ``focus`` (infinity: a constant clip shift, the light's
     parallel cameras). ``lens``: a fixed lens point, folded into the vertices (a 2D draw)."""
-    from pipeline_sim.draw import draw_from_clip, lens_shift
+    from pipeline_sim.draw import draw_from_world
 
     proj = camera.projection_matrix(width / height)
-    matrix = proj @ camera.view_matrix()
     ends = [np.concatenate([m.at(t) for m in meshes]) for t in times]
-    clip = [_clip(w, matrix) for w in ends]
-    n = len(ends[0])
-    shift = np.zeros((2, n, 3, 2))
-    if lens_radius > 0:
-        for t in (0, 1):
-            shift[0, :, :, t], shift[1, :, :, t] = lens_shift(proj, clip[t][..., 3], lens_radius, focus)
-    if lens is not None:  # a fixed lens point: the vertices themselves move
-        for t in (0, 1):
-            clip[t][..., 0] += lens[0] * shift[0, :, :, t]
-            clip[t][..., 1] += lens[1] * shift[1, :, :, t]
-        shift[:] = 0.0
     color = np.concatenate([np.tile(m.color, (len(m.world0), 1)) for m in meshes])
-    draw = draw_from_clip(clip[0], clip[1], shift[0], shift[1], color=color, width=width, height=height)
+    draw = draw_from_world(ends[0], ends[1], proj, camera.view_matrix(), width=width, height=height,
+                           lens_radius=lens_radius, focus=focus, lens_point=lens, color=color)
     pos = np.stack(ends).astype(np.float32)
     return dataclasses.replace(draw, pos=pos, nrm=np.stack([_normals(e) for e in ends]).astype(np.float32),
-                               material=np.ones(n, np.int32), depth_w=(float(-proj[2, 2]), float(proj[2, 3])))
+                               material=np.ones(draw.n, np.int32))
 
 
 @nb.njit(cache=True)
