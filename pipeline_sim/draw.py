@@ -162,6 +162,36 @@ def build_draw(scene) -> Draw:
     )
 
 
+def draw_from_world(world0: np.ndarray, world1: np.ndarray, proj: np.ndarray, view: np.ndarray | None = None, *,
+                    width: int, height: int, lens_radius: float | tuple[float, float] = 0.0,
+                    focus: float = np.inf, lens_point: tuple[float, float] | None = None, color=None) -> Draw:
+    """A draw of world-space triangles (N, 3, 3) at shutter open and close, seen through the eye->clip
+    ``proj`` after the world->eye ``view`` (None: the world is eye space), as ``build_draw`` makes a
+    static camera's: clip coordinates, the thin lens's clip shifts (``lens_shift``; Wu13 §3.1) for a lens
+    of ``lens_radius`` (or (x, y) half sizes of an oblong lens) focused at ``focus`` (inf: a constant
+    shift, cameras translated parallel to the image plane), and ``depth_w`` of a perspective ``proj``.
+    ``lens_point``: one fixed lens point (u, v), folded into the vertices (a 2D draw, no lens shift).
+    Positions, normals and materials are ``draw_from_clip``'s; callers with world attributes replace them."""
+    matrix = proj if view is None else proj @ view
+    clip = [np.concatenate([w, np.ones(w.shape[:-1] + (1,))], axis=-1) @ matrix.T for w in (world0, world1)]
+    n = len(world0)
+    rx, ry = (lens_radius, lens_radius) if np.ndim(lens_radius) == 0 else lens_radius
+    shift = np.zeros((2, n, 3, 2))
+    for t in (0, 1):
+        if rx > 0:
+            shift[0, :, :, t] = lens_shift(proj, clip[t][..., 3], rx, focus)[0]
+        if ry > 0:
+            shift[1, :, :, t] = lens_shift(proj, clip[t][..., 3], ry, focus)[1]
+    if lens_point is not None:
+        for t in (0, 1):
+            clip[t][..., 0] += lens_point[0] * shift[0, :, :, t]
+            clip[t][..., 1] += lens_point[1] * shift[1, :, :, t]
+        shift[:] = 0.0
+    draw = draw_from_clip(clip[0], clip[1], shift[0], shift[1], color=color, width=width, height=height)
+    draw.depth_w = (float(-proj[2, 2]), float(proj[2, 3])) if proj[3, 3] == 0 else None
+    return draw
+
+
 def draw_from_clip(q, r=None, lens_x=None, lens_y=None, color=None, width=64, height=64) -> Draw:
     """A draw made directly from clip-space triangles (tests, workloads)."""
     q = np.asarray(q, dtype=np.float64).reshape(-1, 3, 4)

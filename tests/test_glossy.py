@@ -28,6 +28,7 @@ from pipeline_sim.config import load_arch
 from pipeline_sim.render import run_pass
 from pipeline_sim.shaders import standard_params
 from pipeline_sim.workload import load_workload
+from workloads.apps.raycast import nearest_hits
 from runs import refused, run_doc_example
 
 APP = Path(__file__).resolve().parents[1] / "workloads" / "apps" / "glossy"
@@ -140,9 +141,8 @@ def test_main_pass_lays_the_texture_on_the_surface(tmp_path):
     d = (world[:3] / world[3]).T - cam.eye
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     everything = glossy.reference_triangles(w.scene, -1)
-    tri, bary = np.empty(len(d), np.int64), np.zeros((len(d), 2))
     times = main_pass.samples.t.astype(np.float64)
-    glossy._nearest_hits(everything.p0, everything.p1, np.tile(cam.eye, (len(d), 1)), d, times, tri, bary)
+    tri, _, _ = nearest_hits(everything.p0, everything.p1, np.tile(cam.eye, (len(d), 1)), d, times)
     on = (tri >= 0) & (everything.object_id[np.maximum(tri, 0)] == surface.index)
     hit = cam.eye + d[on] * (np.dot(surface.point - cam.eye, surface.normal) / (d[on] @ surface.normal))[:, None]
     mirrored = d[on] - 2.0 * (d[on] @ surface.normal)[:, None] * surface.normal

@@ -1,6 +1,7 @@
 """Point sets from the rasterizer as a sampler (workloads/apps/sampling, docs/sampling-app.md): maximal
 Poisson-disk sets by accelerated dart throwing, checked with k-d trees, a dense probe grid, scipy's
-sampler and the random-sequential-adsorption coverage; adaptive white noise against its density."""
+sampler and the random-sequential-adsorption coverage; adaptive white noise against its density, and its
+cells' bound holding every sample the height field accepts (hypothesis)."""
 
 import math
 from pathlib import Path
@@ -16,7 +17,8 @@ from pipeline_sim.config import load_arch
 from pipeline_sim.errors import UserError
 from pipeline_sim.render import run_passes
 from workloads.apps.sampling import (RECORD, Settings, _covered, accept_candidates, adaptive_white_noise,
-                                     base_grid, load_density, poisson_disk, reference_poisson)
+                                     base_grid, density_cells, load_density, poisson_disk, reference_poisson,
+                                     slab_bounds)
 
 ARCH = load_arch()
 # random sequential adsorption's jamming coverage by disks of radius r/2 in the plane (Feder 1980)
@@ -150,6 +152,33 @@ def test_adaptive_white_noise_follows_the_density():
 
     assert stats.kstest(pts[:, 0], cdf).pvalue > 1e-3
     assert out["bound_volume"] >= rho.sum()
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(1, 20), st.integers(1, 20), st.integers(1, 8), st.integers(1, 16), st.data())
+def test_density_cells_bound_every_sample_under_the_height_field(h, w, cell, levels, data):
+    """A sample (x, y, t) is under the height field when t < rho at its pixel (float32, as the shader's
+    fetch compares); the largest such t, one float32 below rho, must lie in exactly one cell of the
+    bound, under that cell's clip plane. Densities include 0, 1, the clip planes' own heights and their
+    float32 neighbours (the rounding up's edges)."""
+    planes = slab_bounds(levels).astype(np.float32)
+    edges = np.concatenate([planes, np.nextafter(planes, np.float32(0)), np.nextafter(planes, np.float32(2))])
+    value = st.one_of(st.sampled_from(sorted(float(e) for e in edges if 0.0 <= e <= 1.0)),
+                      st.floats(0.0, 1.0, width=32))
+    rho = np.array(data.draw(st.lists(value, min_size=h * w, max_size=h * w)), np.float32).reshape(h, w)
+    py, px = np.mgrid[0:h, 0:w]
+    bounds = slab_bounds(levels)
+    holding = np.zeros((h, w), int)
+    plane = np.zeros((h, w))
+    for k, corners in density_cells(rho, cell, levels).items():
+        for cx, cy in corners:
+            inside = (px >= cx) & (px < cx + cell) & (py >= cy) & (py < cy + cell)
+            holding += inside
+            plane[inside] = bounds[k]
+    accepted = rho > 0  # some t in [0, rho) exists
+    highest = np.nextafter(rho, np.float32(0)).astype(np.float64)
+    assert (holding[accepted] == 1).all()
+    assert (highest[accepted] < plane[accepted]).all()
 
 
 def test_density_image_errors_are_one_line(tmp_path):

@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from pipeline_sim.cli import main
 from pipeline_sim.config import load_arch
@@ -164,6 +166,38 @@ def test_the_pipeline_accumulation_passes_match_the_five_d_pass(tmp_path):
     assert r["cycles"] == r["light_cycles"] + r["camera_cycles"] > 0 and r["speedup"] > 1
     assert 0 <= r["error"] < 0.05 and r["error_k2_r16"] == pytest.approx(
         float(np.genfromtxt(out / "study.csv", delimiter=",", names=True)["error"]))
+
+
+# --------------------------------------------------------------------------- the light frustum's bound
+LIGHT_COORD = st.one_of(st.sampled_from([-1.0, 1.0, 0.0]), st.floats(-1.0, 1.0))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(0.0, 10.0), st.floats(1.0, 100.0), st.floats(0.1, 50.0), st.floats(0.0, 4.0),
+       st.lists(st.tuples(LIGHT_COORD, LIGHT_COORD), min_size=1, max_size=6))
+def test_every_caster_and_its_shadow_lands_in_every_shadow_map(light_size, light_height, occluder_height, motion,
+                                                              points):
+    """``shadowed_extent`` (the light camera's window): a caster vertex at t = 0 or 1 (the casters move
+    linearly, so their convex hulls over the shutter are those ends'), seen from any point (u, v) of the
+    square (or inscribed disk) light, projects into NDC [-1, 1]^2 of that point's matrix, and its shadow
+    on the ground (the line from the light point through it, met at y = 0) lies within the extent."""
+    s = S.Settings(light_size=light_size, light_height=light_height, occluder_height=occluder_height,
+                   motion=motion)
+    casters = S.scene_meshes(s)[1:]
+    pts = np.concatenate([np.concatenate([m.world0, m.world1]).reshape(-1, 3) for m in casters])
+    assume(pts[:, 1].max() <= light_height - 2 * S.LIGHT_NEAR)  # what check() refuses
+    uv = np.array(points)
+    clip = np.concatenate([pts, np.ones((len(pts), 1))], axis=1) @ S.light_matrices(
+        s, np.column_stack([uv, np.zeros(len(uv))])).transpose(0, 2, 1)  # (K, N, 4)
+    w = clip[..., 3]
+    assert (w > 0).all()
+    assert (np.abs(clip[..., :2]) <= w[..., None] * (1 + 1e-9)).all()
+    light = S.light_camera(s)
+    axes = light.view_matrix()[:2, :3]
+    lamps = light.eye + 0.5 * light_size * (uv[:, :1] * axes[0] + uv[:, 1:] * axes[1])  # (K, 3)
+    lamp = lamps[:, None, :]
+    shadow = lamp + (pts[None] - lamp) * (lamp[..., 1:2] / (lamp[..., 1:2] - pts[None, :, 1:2]))
+    assert np.abs(shadow[..., [0, 2]]).max() <= S.shadowed_extent(s) * (1 + 1e-9)
 
 
 # --------------------------------------------------------------------------- convergence to the ray-cast reference

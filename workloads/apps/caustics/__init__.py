@@ -56,6 +56,7 @@ from pipeline_sim.schema import key
 from pipeline_sim.settings import FORBID, Flag, count, number
 from pipeline_sim.shaders import IN_PX, IN_PY, IN_PZ, IN_T_HI, IN_TRIANGLE, IN_X, IN_Y, fetch
 from pipeline_sim.workload import Workload, WorkloadResult
+from workloads.apps.raycast import ray_triangles, refract
 
 METHODS = ("exact", "tile", "prism", "hull")
 VIEWS = ("eye", "top")
@@ -164,15 +165,6 @@ def water_surface(s: Settings) -> Surface:
 def light_direction(s: Settings) -> np.ndarray:
     d = np.asarray(s.light, float)
     return d / np.linalg.norm(d)
-
-
-def refract(d: np.ndarray, n: np.ndarray, ior: float) -> np.ndarray:
-    """Unit directions ``d`` (3,) refracted into the medium of index ``ior`` at unit normals ``n`` (N, 3)
-    facing against ``d`` (Snell's law, vector form; air to water never reflects totally)."""
-    cos_i = -(n @ d)
-    eta = 1.0 / ior
-    cos_t = np.sqrt(1.0 - eta * eta * (1.0 - cos_i * cos_i))
-    return eta * d[None, :] + (eta * cos_i - cos_t)[:, None] * n
 
 
 def fresnel_transmittance(cos_i: np.ndarray, ior: float) -> np.ndarray:
@@ -487,17 +479,8 @@ def reference_photon_irradiance(s: Settings, photons: int, seed: int, interpolat
                 inside = (ci >= 0) & (ci < s.cells) & (cj >= 0) & (cj < s.cells) & (ci <= c1[:, 0]) & (cj <= c1[:, 1])
                 v = cj * n + ci
                 for second, tri in enumerate(((v, v + 1, v + n + 1), (v, v + n + 1, v + n))):
-                    a, b, c = (verts[np.where(inside, k, 0)] for k in tri)
-                    e1, e2 = b - a, c - a
-                    pv = np.cross(np.broadcast_to(d, e2.shape), e2)
-                    det = np.einsum("ij,ij->i", e1, pv)
-                    with np.errstate(divide="ignore", invalid="ignore"):
-                        tv = o - a
-                        u = np.einsum("ij,ij->i", tv, pv) / det
-                        qv = np.cross(tv, e1)
-                        w = (qv @ d) / det
-                        t = np.einsum("ij,ij->i", e2, qv) / det
-                    ok = inside & (u >= 0) & (w >= 0) & (u + w <= 1) & (t > 0) & (t < best)
+                    t, u, w, meets = ray_triangles(o, d, *(verts[np.where(inside, k, 0)] for k in tri))
+                    ok = inside & meets & (t > 0) & (t < best)
                     best[ok] = t[ok]
                     face = (second * s.cells + cj) * s.cells + ci
                     hit_face[ok] = face[ok]

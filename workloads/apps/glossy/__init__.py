@@ -47,6 +47,7 @@ from pipeline_sim.settings import FORBID, Text, count, number
 from pipeline_sim.shaders import (IN_B, IN_MATERIAL, IN_NX, IN_NZ, IN_OBJECT, IN_PX, IN_PY, IN_PZ,
                                   IN_R, N_INPUTS, sample_texture, standard_params, standard_shader)
 from pipeline_sim.workload import Workload, WorkloadResult
+from workloads.apps.raycast import nearest_hits, refract
 
 EFFECTS = ("reflection", "refraction")
 # the main shader's parameters after the standard shader's 8: the surface object's index, the main eye,
@@ -184,15 +185,6 @@ def mirror_camera(surface: Surface, eye: np.ndarray, roughness: float, texels: i
     return lens_camera(surface, eye - 2.0 * height * surface.normal, surface.normal, roughness, texels, others)
 
 
-def refract(d: np.ndarray, n: np.ndarray, ior: float) -> np.ndarray:
-    """Unit directions ``d`` (..., 3) refracted into a medium of index ``ior`` through a plane of unit
-    normal ``n`` facing them (Snell's law, vector form)."""
-    eta = 1.0 / ior
-    cos_i = -(d @ n)[..., None]
-    cos_t = np.sqrt(1.0 - eta * eta * (1.0 - cos_i * cos_i))
-    return eta * d + (eta * cos_i - cos_t) * n
-
-
 def central_hit(surface: Surface, eye: np.ndarray, look_at: np.ndarray, where: str) -> np.ndarray:
     """Where the main camera's central ray meets the surface's plane."""
     d = (look_at - eye) / np.linalg.norm(look_at - eye)
@@ -323,57 +315,13 @@ def reference_triangles(scene: Scene, skip: int) -> Triangles:
                      cat(lambda i, o: np.full(len(o.faces), i)))
 
 
-@nb.njit(cache=True)
-def _nearest_hits(p0, p1, origins, dirs, times, tri, bary):
-    """Nearest hit (distance > 0, either side) of each ray with the triangles at the ray's time
-    (Moller-Trumbore in float64, scalar arithmetic): triangle index (-1: none) and barycentrics of
-    vertices 1 and 2."""
-    for r in range(origins.shape[0]):
-        best = np.inf
-        tri[r] = -1
-        t = times[r]
-        ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
-        dx, dy, dz = dirs[r, 0], dirs[r, 1], dirs[r, 2]
-        for k in range(p0.shape[0]):
-            ax = p0[k, 0, 0] + t * (p1[k, 0, 0] - p0[k, 0, 0])
-            ay = p0[k, 0, 1] + t * (p1[k, 0, 1] - p0[k, 0, 1])
-            az = p0[k, 0, 2] + t * (p1[k, 0, 2] - p0[k, 0, 2])
-            e1x = p0[k, 1, 0] + t * (p1[k, 1, 0] - p0[k, 1, 0]) - ax
-            e1y = p0[k, 1, 1] + t * (p1[k, 1, 1] - p0[k, 1, 1]) - ay
-            e1z = p0[k, 1, 2] + t * (p1[k, 1, 2] - p0[k, 1, 2]) - az
-            e2x = p0[k, 2, 0] + t * (p1[k, 2, 0] - p0[k, 2, 0]) - ax
-            e2y = p0[k, 2, 1] + t * (p1[k, 2, 1] - p0[k, 2, 1]) - ay
-            e2z = p0[k, 2, 2] + t * (p1[k, 2, 2] - p0[k, 2, 2]) - az
-            px, py, pz = dy * e2z - dz * e2y, dz * e2x - dx * e2z, dx * e2y - dy * e2x
-            det = e1x * px + e1y * py + e1z * pz
-            if det == 0.0:
-                continue
-            sx, sy, sz = ox - ax, oy - ay, oz - az
-            b1 = (sx * px + sy * py + sz * pz) / det
-            if b1 < 0.0 or b1 > 1.0:
-                continue
-            qx, qy, qz = sy * e1z - sz * e1y, sz * e1x - sx * e1z, sx * e1y - sy * e1x
-            b2 = (dx * qx + dy * qy + dz * qz) / det
-            if b2 < 0.0 or b1 + b2 > 1.0:
-                continue
-            dist = (e2x * qx + e2y * qy + e2z * qz) / det
-            if 0.0 < dist < best:
-                best = dist
-                tri[r] = k
-                bary[r, 0] = b1
-                bary[r, 1] = b2
-
-
 def reference_trace(tris: Triangles, origins: np.ndarray, dirs: np.ndarray, times: np.ndarray,
                     light: np.ndarray, background: np.ndarray) -> np.ndarray:
     """The colour (M, 3) each ray (origin, direction, shutter time) sees: its nearest hit shaded by the
     standard shader (position, normal and colour interpolated as the shading unit does), else
     ``background``."""
     m = len(origins)
-    tri = np.empty(m, np.int64)
-    bary = np.zeros((m, 2))
-    _nearest_hits(tris.p0, tris.p1, np.ascontiguousarray(origins, np.float64),
-                  np.ascontiguousarray(dirs, np.float64), np.ascontiguousarray(times, np.float64), tri, bary)
+    tri, _, bary = nearest_hits(tris.p0, tris.p1, origins, dirs, times)
     hit = tri >= 0
     k, t = tri[hit], times[hit][:, None, None]
     lam = np.stack([1.0 - bary[hit].sum(axis=1), bary[hit, 0], bary[hit, 1]], axis=1)[:, :, None]

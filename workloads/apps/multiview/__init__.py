@@ -19,6 +19,7 @@ over one view, and each view's error against a ray-cast reference from its own c
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Annotated
 
@@ -29,12 +30,15 @@ from pydantic import Field
 from pipeline_sim.config import ArchConfig, apply_overrides
 from pipeline_sim.errors import UserError
 from pipeline_sim.output import finite_or_none
+from pipeline_sim.scene import Camera
 from pipeline_sim.schema import key
 from pipeline_sim.settings import FORBID, count, number
 from pipeline_sim.workload import Workload, WorkloadResult
+from workloads.apps.raycast import ray_triangles
 
 # the camera line's centre camera: at the origin looking down -z, vertical field of view 45 degrees
-FOV_Y, NEAR, FAR = np.radians(45.0), 0.5, 40.0
+CAMERA = Camera("perspective", np.zeros(3), np.array([0.0, 0.0, -1.0]), np.array([0.0, 1.0, 0.0]), np.zeros(3),
+                np.array([0.0, 0.0, -1.0]), 45.0, 0.5, 40.0)
 CLEAR = (0.0, 0.0, 0.0, 1.0)
 # the standard shader's directional light (pipeline_sim.shaders.STANDARD_PARAMS): direction, colour, ambient
 LIGHT_DIRECTION = np.array([-0.4, -1.0, -0.6]) / np.linalg.norm([-0.4, -1.0, -0.6])
@@ -127,16 +131,6 @@ def sample_table(layout: Layout, seed: int) -> np.ndarray:
     return np.column_stack([s.x, s.y, s.u, s.v, s.t]).astype(np.float64)
 
 
-def projection(aspect: float) -> np.ndarray:
-    """The OpenGL perspective matrix of the centre camera (clip w = -z_eye)."""
-    f = 1.0 / np.tan(FOV_Y / 2.0)
-    m = np.zeros((4, 4))
-    m[0, 0], m[1, 1] = f / aspect, f
-    m[2, 2], m[2, 3] = (FAR + NEAR) / (NEAR - FAR), 2.0 * FAR * NEAR / (NEAR - FAR)
-    m[3, 2] = -1.0
-    return m
-
-
 def _grid(corner: np.ndarray, a: np.ndarray, b: np.ndarray, n: int, colors) -> tuple[np.ndarray, ...]:
     """A parallelogram corner + [0, 1] a + [0, 1] b cut into n x n cells of two triangles each, each cell
     one of ``colors`` in a checker; (2 n^2, 3, 3) positions and colours, (2 n^2, 3) normals (a x b)."""
@@ -191,22 +185,16 @@ def scene_triangles(motion: float) -> tuple[np.ndarray, ...]:
 def scene_draw(s: Settings, layout: Layout):
     """The scene as one draw on ``layout``'s oblong lens: clip-space triangles of the centre camera and
     lens shifts half_width (u) and aperture_height (v) world units per unit lens coordinate."""
-    from pipeline_sim.draw import Draw, lens_shift
+    from pipeline_sim.draw import draw_from_world
 
-    proj = projection(s.width / s.height)
     world0, world1, colors, normals = scene_triangles(s.motion)
-    n = len(world0)
-    clip = [np.concatenate([w, np.ones((n, 3, 1))], axis=2) @ proj.T for w in (world0, world1)]
-    lens_x, lens_y = np.zeros((n, 3, 2)), np.zeros((n, 3, 2))
-    for t in (0, 1):
-        lens_x[:, :, t] = lens_shift(proj, clip[t][:, :, 3], layout.half_width, s.focus_distance)[0]
-        lens_y[:, :, t] = lens_shift(proj, clip[t][:, :, 3], s.aperture_height, s.focus_distance)[1]
+    draw = draw_from_world(world0, world1, CAMERA.projection_matrix(s.width / s.height), width=s.width,
+                           height=s.height, lens_radius=(layout.half_width, s.aperture_height),
+                           focus=s.focus_distance, color=colors)
     normals = np.repeat(normals[:, None, :], 3, axis=1)
-    return Draw(q=clip[0], r=clip[1], lens_x=lens_x, lens_y=lens_y,
-                pos=np.stack([world0, world1]).astype(np.float32),
-                nrm=np.stack([normals, normals]).astype(np.float32), color=colors.astype(np.float32),
-                material=np.ones(n, np.int32), object_id=np.zeros(n, np.int32), width=s.width, height=s.height,
-                depth_w=(float(-proj[2, 2]), float(proj[2, 3])))
+    return dataclasses.replace(draw, pos=np.stack([world0, world1]).astype(np.float32),
+                               nrm=np.stack([normals, normals]).astype(np.float32),
+                               material=np.ones(draw.n, np.int32))
 
 
 def _screen_bounds(world0: np.ndarray, world1: np.ndarray, lens_box: tuple[float, float, float, float],
@@ -214,7 +202,9 @@ def _screen_bounds(world0: np.ndarray, world1: np.ndarray, lens_box: tuple[float
     """Each triangle's pixel box (x0, x1, y0, y1), inclusive, over the shutter and a lens box (x_lo, x_hi,
     y_lo, y_hi world units): a vertex p seen from lens point L lies on the ray through the focus-plane
     point L + (p - L) F / -p_z, whose image position is monotonic in t (p linear in t, p_z < 0) and
-    linear in L, so the corners of t and of the lens box bound it."""
+    linear in L, so the corners of t and of the lens box bound it. Every vertex must lie in front of the
+    lens plane (p_z < 0 at both shutter ends), as the scene's do; the bounds are padded by a pixel
+    against rounding."""
     corners = np.array([(x, y) for x in lens_box[:2] for y in lens_box[2:]])
     pts = np.concatenate([world0, world1], axis=1)  # (N, 6, 3)
     scale = focus / -pts[:, :, 2]  # (N, 6)
@@ -230,9 +220,10 @@ def reference_view_images(s: Settings, layout: Layout, spp: int, seed: int = 1) 
     """Each view rendered on its own by numpy ray casting (independent of the 5D path): per pixel,
     ``spp`` rays from uniform points of the view's own lens (its window along the camera line times the
     aperture's height) through uniform points of the pixel on the focus plane, at uniform shutter
-    times; the nearest hit (Moller-Trumbore against the triangles moved to the ray's time) shaded as the
-    standard shader's Lambert, the clear colour where none. Returns (H, W, 4) images, left to right."""
-    proj = projection(s.width / s.height)
+    times; the nearest hit (``raycast.ray_triangles`` against the triangles moved to the ray's time)
+    shaded as the standard shader's Lambert, the clear colour where none. Returns (H, W, 4) images, left
+    to right."""
+    proj = CAMERA.projection_matrix(s.width / s.height)
     world0, world1, colors, normals = scene_triangles(s.motion)
     shade = colors * (LIGHT[7] + LIGHT[4:7] * np.maximum(0.0, normals @ -LIGHT_DIRECTION)[:, None, None])
     rng = np.random.default_rng(seed)
@@ -258,17 +249,9 @@ def reference_view_images(s: Settings, layout: Layout, spp: int, seed: int = 1) 
             rows = slice(int(max(y0, 0)) * row, int(min(y1 + 1, h)) * row)
             sel = np.flatnonzero((px[rows] >= x0) & (px[rows] <= x1)) + rows.start
             tm = time[sel, None]
-            v0, v1, v2 = (world0[k, i] + tm * (world1[k, i] - world0[k, i]) for i in range(3))
-            e1, e2, ds, tvec = v1 - v0, v2 - v0, d[sel], lens[sel] - v0
-            pvec = np.cross(ds, e2)
-            det = np.einsum("ij,ij->i", e1, pvec)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                inv = 1.0 / det
-                a = np.einsum("ij,ij->i", tvec, pvec) * inv
-                qvec = np.cross(tvec, e1)
-                b = np.einsum("ij,ij->i", ds, qvec) * inv
-                dist = np.einsum("ij,ij->i", e2, qvec) * inv
-            hit = (det != 0) & (a >= 0) & (b >= 0) & (a + b <= 1) & (dist > 0) & (dist < best[sel])
+            dist, a, b, meets = ray_triangles(lens[sel], d[sel], *(world0[k, i] + tm * (world1[k, i] - world0[k, i])
+                                                                    for i in range(3)))
+            hit = meets & (dist > 0) & (dist < best[sel])
             a, b, at = a[hit, None], b[hit, None], sel[hit]
             best[at] = dist[hit]
             rgb[at] = (1 - a - b) * shade[k, 0] + a * shade[k, 1] + b * shade[k, 2]

@@ -26,12 +26,14 @@ from pydantic import Field
 
 from pipeline_sim.config import ArchConfig, apply_overrides
 from pipeline_sim.output import finite_or_none
+from pipeline_sim.scene import Camera
 from pipeline_sim.schema import key
 from pipeline_sim.settings import FORBID, count, number
 from pipeline_sim.workload import Workload, WorkloadResult
 
 # the camera: at the origin looking down -z, vertical field of view 50 degrees
-FOV_Y, NEAR, FAR = np.radians(50.0), 1.0, 40.0
+CAMERA = Camera("perspective", np.zeros(3), np.array([0.0, 0.0, -1.0]), np.array([0.0, 1.0, 0.0]), np.zeros(3),
+                np.array([0.0, 0.0, -1.0]), 50.0, 1.0, 40.0)
 OCCLUDER_DISTANCE = 6.0
 OCCLUDER_HALF = (1.5, 1.0)  # half width and height of the occluding wall, world units
 PROXY_DEPTHS = (8.0, 12.0)  # distances of the proxies' centres
@@ -71,16 +73,6 @@ class Settings:
                             default_factory=lambda: [1, 2, 4])
 
 
-def projection(aspect: float) -> np.ndarray:
-    """The OpenGL perspective matrix of the workload's camera (clip w = -z_eye)."""
-    f = 1.0 / np.tan(FOV_Y / 2.0)
-    m = np.zeros((4, 4))
-    m[0, 0], m[1, 1] = f / aspect, f
-    m[2, 2], m[2, 3] = (FAR + NEAR) / (NEAR - FAR), 2.0 * FAR * NEAR / (NEAR - FAR)
-    m[3, 2] = -1.0
-    return m
-
-
 def proxy_boxes(s: Settings) -> tuple[np.ndarray, np.ndarray]:
     """Each proxy's box centre at shutter open and close and its half sizes, (N, 2, 3) and (N, 3): centres
     projecting around and within the occluder, at random depths behind it, each following ``follow`` of
@@ -102,19 +94,11 @@ def proxy_boxes(s: Settings) -> tuple[np.ndarray, np.ndarray]:
 
 def _draw(world0: np.ndarray, world1: np.ndarray, s: Settings, proj: np.ndarray, query: str = "samples"):
     """A draw of world-space triangles (N, 3, 3) at shutter open and close, seen by the camera."""
-    from pipeline_sim.draw import draw_from_clip, lens_shift
+    from pipeline_sim.draw import draw_from_world
 
-    clip = []
-    for world in (world0, world1):
-        hom = np.concatenate([world, np.ones(world.shape[:2] + (1,))], axis=2)
-        clip.append(hom @ proj.T)
-    n = len(world0)
-    lens_x, lens_y = np.zeros((n, 3, 2)), np.zeros((n, 3, 2))
-    if s.lens_radius > 0:
-        for t in (0, 1):
-            lens_x[:, :, t], lens_y[:, :, t] = lens_shift(proj, clip[t][:, :, 3], s.lens_radius, s.focus_distance)
-    draw = draw_from_clip(clip[0], clip[1], lens_x, lens_y, width=s.width, height=s.height)
-    return dataclasses.replace(draw, depth_w=(float(-proj[2, 2]), float(proj[2, 3])), query=query)
+    draw = draw_from_world(world0, world1, proj, width=s.width, height=s.height, lens_radius=s.lens_radius,
+                           focus=s.focus_distance)
+    return dataclasses.replace(draw, query=query)
 
 
 class Occlusion(Workload):
@@ -153,7 +137,7 @@ class Occlusion(Workload):
         from pipeline_sim.render import RenderPass
 
         s = self.settings_file
-        proj = projection(s.width / s.height)
+        proj = CAMERA.projection_matrix(s.width / s.height)
         hx, hy = OCCLUDER_HALF
         wall = np.array([[[-hx, -hy, 0.0], [hx, -hy, 0.0], [hx, hy, 0.0]],
                          [[-hx, -hy, 0.0], [hx, hy, 0.0], [-hx, hy, 0.0]]]) + [0.0, 0.0, -OCCLUDER_DISTANCE]

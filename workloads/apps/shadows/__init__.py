@@ -39,6 +39,7 @@ from pipeline_sim.settings import FORBID, Flag, count, number
 from pipeline_sim.shaders import (IN_B, IN_G, IN_NX, IN_NY, IN_NZ, IN_PX, IN_PY, IN_PZ, IN_R, IN_TUPLE,
                                   compare_layer, project)
 from pipeline_sim.workload import Workload, WorkloadResult
+from workloads.apps.raycast import nearest_hit
 
 SCENES = ("moving_object", "occluder_plane")
 LIGHT_SHAPES = ("square", "disk")
@@ -213,10 +214,6 @@ def light_matrices(s: Settings, tuples: np.ndarray) -> np.ndarray:
     return out
 
 
-def _clip(world: np.ndarray, matrix: np.ndarray) -> np.ndarray:
-    return np.concatenate([world, np.ones(world.shape[:-1] + (1,))], axis=-1) @ matrix.T
-
-
 def _normals(world: np.ndarray) -> np.ndarray:
     n = np.cross(world[:, 1] - world[:, 0], world[:, 2] - world[:, 0])
     n /= np.linalg.norm(n, axis=1, keepdims=True)
@@ -228,27 +225,16 @@ def make_draw(meshes: list[Mesh], camera: Camera, width: int, height: int, *, le
     """A draw of ``meshes`` seen by ``camera``: the vertices at ``times`` (shutter open and close), with
     a thin lens of ``lens_radius`` focused at ``focus`` (infinity: a constant clip shift, the light's
     parallel cameras). ``lens``: a fixed lens point, folded into the vertices (a 2D draw)."""
-    from pipeline_sim.draw import draw_from_clip, lens_shift
+    from pipeline_sim.draw import draw_from_world
 
     proj = camera.projection_matrix(width / height)
-    matrix = proj @ camera.view_matrix()
     ends = [np.concatenate([m.at(t) for m in meshes]) for t in times]
-    clip = [_clip(w, matrix) for w in ends]
-    n = len(ends[0])
-    shift = np.zeros((2, n, 3, 2))
-    if lens_radius > 0:
-        for t in (0, 1):
-            shift[0, :, :, t], shift[1, :, :, t] = lens_shift(proj, clip[t][..., 3], lens_radius, focus)
-    if lens is not None:  # a fixed lens point: the vertices themselves move
-        for t in (0, 1):
-            clip[t][..., 0] += lens[0] * shift[0, :, :, t]
-            clip[t][..., 1] += lens[1] * shift[1, :, :, t]
-        shift[:] = 0.0
     color = np.concatenate([np.tile(m.color, (len(m.world0), 1)) for m in meshes])
-    draw = draw_from_clip(clip[0], clip[1], shift[0], shift[1], color=color, width=width, height=height)
+    draw = draw_from_world(ends[0], ends[1], proj, camera.view_matrix(), width=width, height=height,
+                           lens_radius=lens_radius, focus=focus, lens_point=lens, color=color)
     pos = np.stack(ends).astype(np.float32)
     return dataclasses.replace(draw, pos=pos, nrm=np.stack([_normals(e) for e in ends]).astype(np.float32),
-                               material=np.ones(n, np.int32), depth_w=(float(-proj[2, 2]), float(proj[2, 3])))
+                               material=np.ones(draw.n, np.int32))
 
 
 @nb.njit(cache=True)
@@ -368,55 +354,21 @@ def visibility(result) -> np.ndarray:
 
 # --------------------------------------------------------------------------- the ray-cast reference
 @nb.njit(cache=True)
-def _at(w0, w1, i, j, t):
-    """Vertex j of triangle i at time t."""
-    return ((1.0 - t) * w0[i, j, 0] + t * w1[i, j, 0], (1.0 - t) * w0[i, j, 1] + t * w1[i, j, 1],
-            (1.0 - t) * w0[i, j, 2] + t * w1[i, j, 2])
-
-
-@nb.njit(cache=True)
-def _hit(ox, oy, oz, dx, dy, dz, w0, w1, i, t, limit):
-    """Ray parameter in (1e-9, ``limit``) where ray o + s d meets triangle ``i`` of the mesh at time t (its
-    vertices ``(1 - t) w0[i] + t w1[i]``), Möller-Trumbore in float64; inf for none."""
-    ax, ay, az = _at(w0, w1, i, 0, t)
-    bx, by, bz = _at(w0, w1, i, 1, t)
-    cx, cy, cz = _at(w0, w1, i, 2, t)
-    e1x, e1y, e1z = bx - ax, by - ay, bz - az
-    e2x, e2y, e2z = cx - ax, cy - ay, cz - az
-    px, py, pz = dy * e2z - dz * e2y, dz * e2x - dx * e2z, dx * e2y - dy * e2x
-    det = e1x * px + e1y * py + e1z * pz
-    if abs(det) < 1e-14:
-        return np.inf
-    tx, ty, tz = ox - ax, oy - ay, oz - az
-    bu = (tx * px + ty * py + tz * pz) / det
-    qx, qy, qz = ty * e1z - tz * e1y, tz * e1x - tx * e1z, tx * e1y - ty * e1x
-    bv = (dx * qx + dy * qy + dz * qz) / det
-    s = (e2x * qx + e2y * qy + e2z * qz) / det
-    if bu < 0.0 or bv < 0.0 or bu + bv > 1.0 or not 1e-9 < s < limit:
-        return np.inf
-    return s
-
-
-@nb.njit(cache=True)
-def _reference_kernel(origins, targets, times, lamps, w0, w1, seen, vis):
+def _reference_kernel(origins, targets, times, lamps, seen0, seen1, w0, w1, vis):
     """Per ray i: the nearest hit of the camera ray from ``origins[i]`` towards ``targets[i]`` among the
-    seen triangles at time ``times[i]``; there, whether the segment to ``lamps[i]`` meets any triangle."""
+    seen triangles (``seen0``, ``seen1``) at time ``times[i]``; there, whether the segment to ``lamps[i]``
+    meets any triangle (``w0``, ``w1``). Hits closer than 1e-9 of either ray's length are not counted."""
     for r in range(len(times)):
         ox, oy, oz, t = origins[r, 0], origins[r, 1], origins[r, 2], times[r]
         dx, dy, dz = targets[r, 0] - ox, targets[r, 1] - oy, targets[r, 2] - oz
-        best = np.inf
-        for i in range(len(w0)):
-            if seen[i]:
-                best = min(best, _hit(ox, oy, oz, dx, dy, dz, w0, w1, i, t, np.inf))
+        tri, best, _, _ = nearest_hit(ox, oy, oz, dx, dy, dz, seen0, seen1, t, 1e-9, np.inf)
         vis[r] = 1.0
-        if best == np.inf:
+        if tri < 0:
             continue
         px, py, pz = ox + best * dx, oy + best * dy, oz + best * dz
         lx, ly, lz = lamps[r, 0] - px, lamps[r, 1] - py, lamps[r, 2] - pz
-        for i in range(len(w0)):
-            if _hit(px, py, pz, lx, ly, lz, w0, w1, i, t, 1.0 - 1e-9) < np.inf:
-                vis[r] = 0.0
-                break
+        if nearest_hit(px, py, pz, lx, ly, lz, w0, w1, t, 1e-9, 1.0 - 1e-9)[0] >= 0:
+            vis[r] = 0.0
 
 
 def reference_visibility(s: Settings, samples: int) -> np.ndarray:
@@ -446,10 +398,10 @@ def reference_visibility(s: Settings, samples: int) -> np.ndarray:
     axes = light.view_matrix()[:2, :3]  # the light's x and y axes in world space
     lamps = light.eye + 0.5 * s.light_size * (lu[:, None] * axes[0] + lv[:, None] * axes[1])
     vis = np.empty(len(pix))
+    seen = [m for m in meshes if m.seen]
     _reference_kernel(origin @ to_world[:3, :3].T + to_world[:3, 3], target @ to_world[:3, :3].T + to_world[:3, 3],
-                      pts[:, 2], lamps, np.concatenate([m.world0 for m in meshes]),
-                      np.concatenate([m.world1 for m in meshes]),
-                      np.concatenate([np.full(len(m.world0), m.seen) for m in meshes]), vis)
+                      pts[:, 2], lamps, *(np.concatenate([getattr(m, f) for m in group])
+                                          for group in (seen, meshes) for f in ("world0", "world1")), vis)
     return vis.reshape(s.height, s.width, samples).mean(axis=2)
 
 
