@@ -275,7 +275,9 @@ class Rop:
         self.depth = np.full(n, self.clear_depth, np.float32)
         self.buffers = tuple(np.empty((n, c), np.float32) for c in self.channels)
         for buf, clear in zip(self.buffers, self.clears):
-            buf[:] = clear
+            # as one element the size of a row: numpy fills that as it fills a scalar, several times
+            # faster than it broadcasts a row
+            buf.view(np.dtype((np.void, clear.nbytes))).fill(clear.tobytes())
         self.samples = samples
 
     def _resolve_region(self) -> None:
