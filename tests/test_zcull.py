@@ -368,7 +368,7 @@ def test_refresh_of_many_samples_per_box_matches_numpy(func, slices, boxes, spp,
     zcull = zc.ZCull(cfg, func, ts, w, h, 1.0)
     rop = Rop(RopConfig(), PassState(depth_test=func), w, h, spp, (0, 0, 0, 1), 1.0, zcull, regions.region(0),
               rows=plan.bounds(0))
-    levels = np.array([0.0, -0.0, 0.5, 0.5, 0.75], np.float32)
+    levels = np.array([0.0, -0.0, 0.5, 0.5, 0.75, 0.9], np.float32)
     for region in range(plan.count):
         r0, r1 = plan.bounds(region)
         samples = regions.region(region)
@@ -378,21 +378,27 @@ def test_refresh_of_many_samples_per_box_matches_numpy(func, slices, boxes, spp,
         box = np.array([brute_box(samples, k, slices, boxes) for k in range(len(samples.t))])
         tile_of = ((np.arange(len(box)) // spp // w // ts) * zcull.tiles_x + np.arange(len(box)) // spp % w // ts)
         scanned = set()
-        for _ in range(30 // group):
+        for step in range(40 // group):
             before = zcull.zmax.copy()
             requests = []
             for _ in range(group):
-                pix = rng.choice(np.arange(r0 * w, r1 * w), int(rng.integers(1, 6)), replace=False)
-                pix = np.repeat(pix, spp)
+                # the first batch covers the region, so that a box's largest depth is not the clear depth; one
+                # halfway through writes +0 and -0 all over: the largest depths are zeros, which of them is first
+                # shows in their bits
+                cover = step in (0, 20 // group)
+                pix = rng.choice(np.arange(r0 * w, r1 * w), int(rng.integers(1, 12)), replace=False)
+                pix = np.repeat(np.arange(r0 * w, r1 * w) if cover else pix, spp)
                 sidx = np.tile(np.arange(spp), len(pix) // spp)
-                keep = rng.random(len(pix)) < rng.uniform(0.2, 1.0)
+                keep = rng.random(len(pix)) < (1.0 if cover else rng.uniform(0.2, 1.0))
                 pix, sidx = pix[keep].astype(np.int32), sidx[keep].astype(np.int32)
                 if rng.random() < 0.3:  # scattered: a pixel's samples apart
                     perm = rng.permutation(len(pix))
                     pix, sidx = pix[perm], sidx[perm]
                 n = len(pix)
-                z = np.where(rng.random(n) < 0.5, levels[rng.integers(0, len(levels), n)],
-                             rng.uniform(-0.2, 1.0, n)).astype(np.float32)
+                z = np.where(rng.random(n) < 0.3, levels[rng.integers(0, len(levels), n)],
+                             rng.uniform(-0.2, 0.9, n)).astype(np.float32)
+                if step == 20 // group:
+                    z = levels[rng.integers(0, 2, n)]
                 batch = dict(pix=pix, sidx=sidx, z=z, color=np.ones((n, 4), np.float32),
                              noread=np.zeros(n, np.bool_))
                 requests.append(rop.run(batch)[0])
