@@ -153,28 +153,6 @@ def _box_max(depth, order, k0, k1):
 
 
 @nb.njit(cache=True)
-def _index_pixel(nt, nl, st, su, sv, depth, box_of, order, start, cursor, pmax):
-    """A pixel's first refresh from a depth buffer, from its samples' (t, u, v) and ``depth``: the box of
-    each sample (``box_of``), its samples grouped by box in sample order (``order``: their indices in the
-    pixel, box ``b``'s at ``start[b]:start[b + 1]``) and the largest depth of each box (``pmax``).
-    ``cursor``: scratch, one entry per box. The arrays are the pixel's own (loops from 0 vectorize)."""
-    for s in range(st.shape[0]):
-        box_of[s] = _sample_box(st[s], su[s], sv[s], nt, nl)
-    start[:] = 0
-    for s in range(st.shape[0]):
-        start[box_of[s] + 1] += 1
-    for b in range(cursor.shape[0]):
-        start[b + 1] += start[b]
-        cursor[b] = start[b]
-    for s in range(st.shape[0]):
-        b = box_of[s]
-        order[cursor[b]] = s
-        cursor[b] += 1
-    for b in range(pmax.shape[0]):
-        pmax[b] = _box_max(depth, order, start[b], start[b + 1])
-
-
-@nb.njit(cache=True)
 def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st, su, sv, depth, zmax, exact, slot,
                    box_of, order, start, pmax, dirty, work):
     """Set zmax of every box of the tiles touched by ``pix`` to the largest depth of its samples
@@ -268,10 +246,25 @@ def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st,
         read = 0
         for py in range(tyy * tile_size, min((tyy + 1) * tile_size, height_px)):
             for p in range(py * width + x0, py * width + x1):
-                if fresh:
+                if fresh:  # the pixel's first refresh: its samples' boxes, grouped by box, and their largest
+                    # depths; on the pixel's own arrays (loops from 0 vectorize)
                     k0, k1 = p * spp, (p + 1) * spp
-                    _index_pixel(nt, nl, st[k0:k1], su[k0:k1], sv[k0:k1], depth[k0:k1], box_of[k0:k1],
-                                 order[k0:k1], start[p], cursor, pmax[p])
+                    boxes, group, own, ends = box_of[k0:k1], order[k0:k1], depth[k0:k1], start[p]
+                    pt, pu, pv = st[k0:k1], su[k0:k1], sv[k0:k1]
+                    for s in range(spp):
+                        boxes[s] = _sample_box(pt[s], pu[s], pv[s], nt, nl)
+                    ends[:] = 0
+                    for s in range(spp):
+                        ends[boxes[s] + 1] += 1
+                    for b in range(nbox):
+                        ends[b + 1] += ends[b]
+                        cursor[b] = ends[b]
+                    for s in range(spp):
+                        b = boxes[s]
+                        group[cursor[b]] = s
+                        cursor[b] += 1
+                    for b in range(nbox):
+                        pmax[p, b] = _box_max(own, group, ends[b], ends[b + 1])
                 for b in range(nbox):  # every box recomputed; only the stale boxes' samples count as read
                     if mask[b]:
                         read += start[p, b + 1] - start[p, b]
