@@ -290,3 +290,48 @@ def test_replaced_first_target_of_any_width_with_further_targets(first_channels)
     for buf, w in zip(rop.buffers, want):
         np.testing.assert_array_equal(buf, w)
     np.testing.assert_array_equal(rop.depth, depth)
+
+
+@pytest.mark.parametrize("channels", [1, 3, 4, 5, 8])
+def test_resolve_kernel_sums_in_sample_order(channels):
+    """The box filter against a plain Python loop summing each pixel's samples in float64 in sample order,
+    bit for bit, at any channel count: small values among +-1e20, which swallow them, so another order of
+    additions gives another sum."""
+    from units.rop import resolve_kernel
+
+    rng = np.random.default_rng(channels)
+    npix, spp = 6, 16
+    buf = np.where(rng.random((npix * spp, channels)) < 0.25, rng.choice([-1e20, 1e20], (npix * spp, channels)),
+                   rng.normal(size=(npix * spp, channels))).astype(np.float32)
+    out = np.empty((npix, channels), np.float32)
+    resolve_kernel(buf, spp, out)
+    for p in range(npix):
+        for c in range(channels):
+            acc = 0.0
+            for s in range(spp):
+                acc += float(buf[p * spp + s, c])
+            assert out[p, c].view(np.uint32) == np.float32(acc / spp).view(np.uint32)
+
+
+def test_each_region_starts_cleared():
+    """Targets of 1, 3 and 5 channels with their own clear values (-0 among them), over three screen
+    regions: each region's buffers hold the clear values, bit for bit, when it opens, though the last
+    one's were written all over; its depth the clear depth."""
+    from pipeline_sim.definitions import ShaderOutput, Target
+
+    width, height, spp = 4, 6, 2
+    outputs = (ShaderOutput("a", 1), ShaderOutput("b", 3), ShaderOutput("c", 5))
+    clears = ((-0.0,), (0.25, -1.5, 3.0), (1.0, 2.0, -0.0, 4.0, 1e30))
+    targets = tuple(Target(o.name, o.name, clear=c) for o, c in zip(outputs, clears))
+    rop = Rop(RopConfig(), PassState(depth_test="always"), width, height, spp, (0, 0, 0, 0), 0.5, targets=targets,
+              outputs=outputs, rows=(0, 2))
+    for r0 in (2, 4):
+        n = 2 * width * spp
+        pix = np.repeat(np.arange((r0 - 2) * width, r0 * width, dtype=np.int32), spp)
+        rop.run(dict(pix=pix, sidx=np.tile(np.arange(spp, dtype=np.int32), 2 * width),
+                     z=np.zeros(n, np.float32), color=np.full((n, 9), 7.0, np.float32), noread=np.zeros(n, bool)))
+        rop.open_region((r0, r0 + 2))
+        for buf, clear in zip(rop.buffers, clears):
+            want = np.tile(np.array(clear, np.float32), (n, 1))
+            np.testing.assert_array_equal(buf.view(np.uint32), want.view(np.uint32))
+        np.testing.assert_array_equal(rop.depth, np.full(n, 0.5, np.float32))

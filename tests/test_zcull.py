@@ -324,6 +324,112 @@ def test_refresh_rescans_a_new_depth_buffer():
     assert work[zc.RF_TILES] == 2 + 1
 
 
+def numpy_zmax(samples, depth, tile_size, nt, nl):
+    """``brute_zmax`` computed another way, with numpy over all samples at once: per (tile, box) the
+    largest depth, and of the samples holding it the first in the tile's row-major order (its bits: +0
+    or -0), -inf for an empty box."""
+    w, spp, h = samples.width, samples.spp, samples.height
+    tiles_x = -(-w // tile_size)
+    nbox = nt * nl * nl
+    it = np.minimum(nt - 1, np.floor(samples.t.astype(np.float64) * nt)).astype(np.int64)
+    iu, iv = (np.clip(np.floor((a.astype(np.float64) + 1.0) * 0.5 * nl), 0, nl - 1).astype(np.int64)
+              for a in (samples.u, samples.v))
+    k = np.arange(w * h * spp)
+    px, py, s = k // spp % w, k // spp // w, k % spp
+    group = ((py // tile_size) * tiles_x + px // tile_size) * nbox + (it * nl + iu) * nl + iv
+    ngroups = tiles_x * -(-h // tile_size) * nbox
+    top = np.full(ngroups, -np.inf, np.float32)
+    np.maximum.at(top, group, depth)
+    order = ((py % tile_size) * tile_size + px % tile_size) * spp + s  # the scan's order within a tile
+    first = np.full(ngroups, len(k), np.int64)
+    at_top = depth == top[group]
+    np.minimum.at(first, group[at_top], order[at_top])
+    sample_at = np.full(ngroups, -1, np.int64)
+    sample_at[group[at_top & (order == first[group])]] = k[at_top & (order == first[group])]
+    out = np.where(sample_at >= 0, depth[np.maximum(sample_at, 0)], top).astype(np.float32)
+    return out.reshape(-1, nbox)
+
+
+@pytest.mark.parametrize("func,slices,boxes,spp,rows,group", [
+    ("less", 4, 2, 64, 8, 1), ("lequal", 4, 2, 64, 8, 3), ("less", 2, 3, 32, 12, 2), ("lequal", 1, 1, 16, 4, 1)])
+def test_refresh_of_many_samples_per_box_matches_numpy(func, slices, boxes, spp, rows, group):
+    """Many samples per pixel and box, as at high spp: random batches of random pixels (each pixel's
+    samples together, or scattered), a random subset of each pixel's samples at random depths (a few
+    levels with ties, +0 and -0, and continuous ones), over several tiles and regions, refreshed after each
+    ``group`` of batches (the ordered refresh takes several requests). After each refresh every tile's
+    boxes equal a numpy recomputation from the whole depth buffer, bit for bit, and the work counted is
+    what a rescan of the stale boxes reads (those a depth not below their zmax was replaced in, all of a
+    tile's first refresh)."""
+    rng = np.random.default_rng(spp + slices + boxes + rows + group)
+    w, h, ts = 14, 12, 4
+    cfg = dataclasses.replace(load_arch().zcull, time_slices=slices, lens_boxes=boxes)
+    plan = RegionPlan(w, h, rows)
+    regions = RegionSamples(plan, lambda r: make_samples(w, h, spp, 9, lens=True, motion=True, rows=r))
+    zcull = zc.ZCull(cfg, func, ts, w, h, 1.0)
+    rop = Rop(RopConfig(), PassState(depth_test=func), w, h, spp, (0, 0, 0, 1), 1.0, zcull, regions.region(0),
+              rows=plan.bounds(0))
+    levels = np.array([0.0, -0.0, 0.5, 0.5, 0.75, 0.9], np.float32)
+    for region in range(plan.count):
+        r0, r1 = plan.bounds(region)
+        samples = regions.region(region)
+        if region:
+            rop.open_region((r0, r1), samples)
+        t0 = r0 // ts * zcull.tiles_x
+        box = np.array([brute_box(samples, k, slices, boxes) for k in range(len(samples.t))])
+        tile_of = ((np.arange(len(box)) // spp // w // ts) * zcull.tiles_x + np.arange(len(box)) // spp % w // ts)
+        scanned = set()
+        for step in range(40 // group):
+            before = zcull.zmax.copy()
+            requests = []
+            for _ in range(group):
+                # the first batch covers the region, so that a box's largest depth is not the clear depth; one
+                # halfway through writes +0 and -0 all over: the largest depths are zeros, which of them is first
+                # shows in their bits
+                cover = step in (0, 20 // group)
+                pix = rng.choice(np.arange(r0 * w, r1 * w), int(rng.integers(1, 12)), replace=False)
+                pix = np.repeat(np.arange(r0 * w, r1 * w) if cover else pix, spp)
+                sidx = np.tile(np.arange(spp), len(pix) // spp)
+                keep = rng.random(len(pix)) < (1.0 if cover else rng.uniform(0.2, 1.0))
+                pix, sidx = pix[keep].astype(np.int32), sidx[keep].astype(np.int32)
+                if rng.random() < 0.3:  # scattered: a pixel's samples apart
+                    perm = rng.permutation(len(pix))
+                    pix, sidx = pix[perm], sidx[perm]
+                n = len(pix)
+                z = np.where(rng.random(n) < 0.3, levels[rng.integers(0, len(levels), n)],
+                             rng.uniform(-0.2, 0.9, n)).astype(np.float32)
+                if step == 20 // group:
+                    z = levels[rng.integers(0, 2, n)]
+                batch = dict(pix=pix, sidx=sidx, z=z, color=np.ones((n, 4), np.float32),
+                             noread=np.zeros(n, np.bool_))
+                requests.append(rop.run(batch)[0])
+            ops, events, nbytes = rop.refresh_zcull(requests)
+            pix = np.concatenate([q[0] for q in requests])
+            k = (pix - r0 * w) * spp + np.concatenate([q[1] for q in requests])
+            prior = np.concatenate([q[2] for q in requests])
+            touched = np.unique(tile_of[k])
+            read = scans = checks = 0
+            for tile in touched:
+                mine = tile_of == tile
+                if tile in scanned:
+                    writes = tile_of[k] == tile
+                    checks += np.count_nonzero(writes)
+                    stale = np.unique(box[k][writes & (prior >= before[t0 + tile, box[k]])])
+                else:
+                    stale = np.unique(box[mine])
+                    scanned.add(tile)
+                scans += len(stale) > 0
+                read += np.count_nonzero(mine & np.isin(box, stale))
+            assert events[rop_mod.EV_REFRESH_TILES] == len(touched)
+            assert events[rop_mod.EV_REFRESH_SCANS] == scans
+            assert (nbytes, ops[OP_CMP]) == (4 * read, checks + read)
+            expect = before.copy()
+            expect[t0 + touched] = numpy_zmax(samples, rop.depth, ts, slices, boxes)[touched]
+            np.testing.assert_array_equal(zcull.zmax.view(np.uint32), expect.view(np.uint32))
+        # the numpy recomputation agrees with the loop over samples
+        np.testing.assert_array_equal(numpy_zmax(samples, rop.depth, ts, slices, boxes).view(np.uint32),
+                                      brute_zmax(samples, rop.depth, ts, slices, boxes).view(np.uint32))
+
+
 @pytest.mark.parametrize("func", [zc.CULL_LESS, zc.CULL_LEQUAL])
 @pytest.mark.parametrize("seed", range(4))
 def test_interval_query_answer_and_work_against_a_loop_over_boxes(func, seed):

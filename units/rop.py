@@ -157,13 +157,28 @@ def blend_kernel(pix, sidx, tri, color, passed, spp, pix0, tri_draw, by_draw, bu
 
 @nb.njit(cache=True)
 def resolve_kernel(color_buf, spp, out):
-    """Box filter (docs/pipeline.md §2.7): each pixel's mean over its ``spp`` samples, summed in float64."""
+    """Box filter (docs/pipeline.md §2.7): each pixel's mean over its ``spp`` samples, summed in float64 in
+    sample order. Four channels at a time in one pass, as four independent sums (not one waiting on the
+    other's additions); the channels after the last four one by one."""
+    nc = out.shape[1]
+    quads = nc - nc % 4
     for p in range(out.shape[0]):
-        base = p * spp
-        for c in range(out.shape[1]):
+        block = color_buf[p * spp:(p + 1) * spp]
+        for c in range(0, quads, 4):
+            a0 = a1 = a2 = a3 = 0.0
+            for s in range(spp):
+                a0 += block[s, c]
+                a1 += block[s, c + 1]
+                a2 += block[s, c + 2]
+                a3 += block[s, c + 3]
+            out[p, c] = a0 / spp
+            out[p, c + 1] = a1 / spp
+            out[p, c + 2] = a2 / spp
+            out[p, c + 3] = a3 / spp
+        for c in range(quads, nc):
             acc = 0.0
             for s in range(spp):
-                acc += color_buf[base + s, c]
+                acc += block[s, c]
             out[p, c] = acc / spp
 
 
@@ -275,7 +290,9 @@ class Rop:
         self.depth = np.full(n, self.clear_depth, np.float32)
         self.buffers = tuple(np.empty((n, c), np.float32) for c in self.channels)
         for buf, clear in zip(self.buffers, self.clears):
-            buf[:] = clear
+            # as one element the size of a row: numpy fills that as it fills a scalar, several times
+            # faster than it broadcasts a row
+            buf.view(np.dtype((np.void, clear.nbytes))).fill(clear.tobytes())
         self.samples = samples
 
     def _resolve_region(self) -> None:

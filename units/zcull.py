@@ -141,30 +141,51 @@ def _sample_box(t, u, v, nt, nl):
     return (it * nl + iu) * nl + iv
 
 
+@nb.njit(cache=True, inline="always")
+def _box_max(depth, order, k0, k1):
+    """The first largest of ``depth[order[k0:k1]]``, -inf if none."""
+    top = -np.inf
+    for k in range(k0, k1):
+        d = depth[order[k]]
+        if d > top:
+            top = d
+    return top
+
+
 @nb.njit(cache=True)
 def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st, su, sv, depth, zmax, exact, slot,
-                   box_of, work):
+                   box_of, order, start, pmax, dirty, work):
     """Set zmax of every box of the tiles touched by ``pix`` to the largest depth of its samples
     (Nilsson12 §3: the ROP keeps z-cull's per-tile bounds up to date).
 
     A box that holds no sample gets -inf: nothing there can be covered. The
     first refresh of a tile from this depth buffer (``exact`` 0) reads all of
-    it and records each sample's box in ``box_of``. After that, depths only
-    decrease under a LESS/LEQUAL test, so a box's largest depth can only have
-    changed where a record replaced a depth (``prior``; NaN: none) not below
-    the box's zmax: only those boxes need their samples read (the work
-    counted); the others keep their zmax, which is exactly what a rescan
-    gives, and tiles with no such box are not rescanned. Depths only
-    decreasing also makes a zmax read before later writes land an upper
-    bound. (zmin is kept by the z-cull test itself, see
+    it. After that, depths only decrease under a LESS/LEQUAL test, so a box's
+    largest depth can only have changed where a record replaced a depth
+    (``prior``; NaN: none) not below the box's zmax: only those boxes need
+    their samples read (the work counted); the others keep their zmax, which
+    is exactly what a rescan gives, and tiles with no such box are not
+    rescanned. Depths only decreasing also makes a zmax read before later
+    writes land an upper bound. (zmin is kept by the z-cull test itself, see
     ``zcull_kernel``.) ``work`` gets the refresh's work, laid out as
-    ``REFRESH_WORK``."""
+    ``REFRESH_WORK``.
+
+    What the modelled rescan reads is computed without reading it: the same
+    argument per pixel keeps each pixel's largest depth per box (``pmax``,
+    with each sample's box in ``box_of`` and the pixel's samples grouped by
+    box in ``order`` and ``start``, all set at the tile's first refresh)
+    exact by rereading only the (pixel, box) pairs a write may have lowered
+    (``dirty``: all False between calls). A tile's zmax is the first largest
+    of its pixels' maxima in row-major order, which is the first largest of
+    its samples in the order a scan reads them: the same bits."""
     n = pix.shape[0]
     nbox = zmax.shape[1]
     rows = min(n, zmax.shape[0])  # at most one row per tile the samples can touch
     touched = np.empty(rows, np.int64)
     # per touched tile, the boxes to rescan: all of a tile's first refresh, else those a write may have lowered
     stale = np.empty((rows, nbox), np.bool_)  # rows filled as tiles are first touched
+    pairs = np.empty(n, np.int64)  # the (pixel, box) pairs to reread, as pixel * nbox + box
+    n_pairs = 0
     n_touched = 0
     checks = 0
     last_pix = -1
@@ -188,11 +209,25 @@ def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st,
         if not first:
             checks += 1
             b = box_of[base + sidx[i]]
-            if prior[i] >= zmax[tile, b]:
-                stale[j, b] = True
+            # a pixel's largest depth in a box is at most the tile's: only a depth not below the first can be
+            # not below the second
+            if prior[i] >= pmax[last_pix, b]:
+                if prior[i] >= zmax[tile, b]:
+                    stale[j, b] = True
+                if not dirty[last_pix, b]:
+                    dirty[last_pix, b] = True
+                    pairs[n_pairs] = last_pix * nbox + b
+                    n_pairs += 1
     work[RF_CHECKS] += checks
     work[RF_TILES] += n_touched
+    for m in range(n_pairs):
+        p = pairs[m] // nbox
+        b = pairs[m] - p * nbox
+        dirty[p, b] = False
+        base = p * spp
+        pmax[p, b] = _box_max(depth[base:base + spp], order[base:base + spp], start[p, b], start[p, b + 1])
     height_px = depth.shape[0] // (width * spp)
+    cursor = np.empty(nbox, np.int32)
     for j in range(n_touched):
         tile = touched[j]
         slot[tile] = 0
@@ -210,19 +245,31 @@ def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st,
         x1 = min(x0 + tile_size, width)
         read = 0
         for py in range(tyy * tile_size, min((tyy + 1) * tile_size, height_px)):
-            k0 = (py * width + x0) * spp
-            k1 = (py * width + x1) * spp
-            if fresh:  # a loop of its own: fused with the one below it runs about 4x slower
-                for k in range(k0, k1):
-                    box_of[k] = _sample_box(st[k], su[k], sv[k], nt, nl)
-            # every box is recomputed (those not stale come out as they were): no branch per
-            # sample; only the stale boxes' samples count as read
-            for k in range(k0, k1):
-                d = depth[k]
-                b = box_of[k]
-                read += mask[b]
-                if d > zrow[b]:
-                    zrow[b] = d
+            for p in range(py * width + x0, py * width + x1):
+                if fresh:  # the pixel's first refresh: its samples' boxes, grouped by box, and their largest
+                    # depths; on the pixel's own arrays (loops from 0 vectorize)
+                    k0, k1 = p * spp, (p + 1) * spp
+                    boxes, group, own, ends = box_of[k0:k1], order[k0:k1], depth[k0:k1], start[p]
+                    pt, pu, pv = st[k0:k1], su[k0:k1], sv[k0:k1]
+                    for s in range(spp):
+                        boxes[s] = _sample_box(pt[s], pu[s], pv[s], nt, nl)
+                    ends[:] = 0
+                    for s in range(spp):
+                        ends[boxes[s] + 1] += 1
+                    for b in range(nbox):
+                        ends[b + 1] += ends[b]
+                        cursor[b] = ends[b]
+                    for s in range(spp):
+                        b = boxes[s]
+                        group[cursor[b]] = s
+                        cursor[b] += 1
+                    for b in range(nbox):
+                        pmax[p, b] = _box_max(own, group, ends[b], ends[b + 1])
+                for b in range(nbox):  # every box recomputed; only the stale boxes' samples count as read
+                    if mask[b]:
+                        read += start[p, b + 1] - start[p, b]
+                    if pmax[p, b] > zrow[b]:
+                        zrow[b] = pmax[p, b]
         work[RF_READ] += read
 
 
@@ -249,10 +296,17 @@ class ZCull:
         self.zmax = np.full((ntiles, nbox), clear_depth, np.float32)
         self.zmin = np.full((ntiles, nbox), clear_depth, np.float32)
         # refresh state: per tile, whether zmax is exact for the ROP's current
-        # depth buffer (``_buffer``) and a scratch slot; each sample's box
+        # depth buffer (``_buffer``) and a scratch slot; each sample's box, and
+        # per pixel its samples grouped by box (indices in the pixel: below
+        # MAX_SPP = 2^16), each box's largest depth and a scratch flag (see
+        # ``refresh_kernel``)
         self.exact = np.zeros(ntiles, np.uint8)
         self.slot = np.zeros(ntiles, np.int64)
         self.box_of = np.empty(0, np.uint8)
+        self.order = np.empty(0, np.uint16)
+        self.start = np.empty((0, nbox + 1), np.int32)
+        self.pmax = np.empty((0, nbox), np.float32)
+        self.dirty = np.zeros((0, nbox), np.bool_)
         self._buffer = None
         self.func = {"less": CULL_LESS, "lequal": CULL_LEQUAL}.get(depth_func, CULL_NONE)
         self.active = bool(config.enabled) and self.func != CULL_NONE
@@ -307,12 +361,20 @@ class ZCull:
                 # a new depth buffer (the next screen region): its tiles start with a full scan
                 self._buffer = weakref.ref(depth)
                 self.exact[:] = 0
-                self.box_of = np.empty(len(depth), np.uint8)
+                npix, nbox = len(depth) // samples.spp, self.zmax.shape[1]
+                # a tile's entries are set at its first refresh (``dirty`` stays all False): those of the last
+                # buffer, if of its size, serve
+                if (len(self.box_of), len(self.pmax)) != (len(depth), npix):
+                    self.box_of = np.empty(len(depth), np.uint8)
+                    self.order = np.empty(len(depth), np.uint16)
+                    self.start = np.empty((npix, nbox + 1), np.int32)
+                    self.pmax = np.empty((npix, nbox), np.float32)
+                    self.dirty = np.zeros((npix, nbox), np.bool_)
             # ``samples`` and ``depth`` hold rows from samples.row0, a tile row
             # (the screen region the ROP is working on): index the tiles from there
             first = samples.row0 // self.tile_size * self.tiles_x
             local = pix - samples.row0 * self.width if samples.row0 else pix
             refresh_kernel(local, sidx, prior, self.width, samples.spp, self.tile_size, self.tiles_x, self.nt,
                            self.nl, samples.t, samples.u, samples.v, depth, self.zmax[first:], self.exact[first:],
-                           self.slot[first:], self.box_of, work)
+                           self.slot[first:], self.box_of, self.order, self.start, self.pmax, self.dirty, work)
         return work
