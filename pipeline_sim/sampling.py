@@ -52,6 +52,9 @@ from math import comb
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba.core import cgutils, types
+from numba.extending import intrinsic
 
 from pipeline_sim.errors import UserError, did_you_mean
 
@@ -248,19 +251,53 @@ def _fixed_to_unit(v: np.uint64) -> np.float64:
     return np.float64(v) * (1.0 / 16777216.0)
 
 
-@numba.njit(**_JIT)
-def _concentric(a: float, b: float) -> tuple[float, float]:
+@numba.njit(error_model="numpy", **_JIT)
+def _concentric_polar(a: float, b: float) -> tuple[float, float]:
+    """Radius and angle of the Shirley-Chiu concentric map of ``(a, b)``, branch-free.
+
+    Both wedges' angles are computed and one selected (the other may divide by
+    zero, hence numpy's error model: an inf or NaN that is never used); the
+    centre gets angle 0, so ``r cos phi`` and ``r sin phi`` are +0 there.
+    """
     sa = 2.0 * a - 1.0
     sb = 2.0 * b - 1.0
-    if sa == 0.0 and sb == 0.0:
-        return 0.0, 0.0
-    if abs(sa) > abs(sb):
-        r = sa
-        phi = (np.pi / 4) * (sb / sa)
-    else:
-        r = sb
-        phi = (np.pi / 2) - (np.pi / 4) * (sa / sb)
-    return r * np.cos(phi), r * np.sin(phi)
+    phi_a = (np.pi / 4) * (sb / sa)
+    phi_b = (np.pi / 2) - (np.pi / 4) * (sa / sb)
+    first = abs(sa) > abs(sb)
+    r = sa if first else sb
+    phi = phi_a if first else phi_b
+    return r, phi if r != 0.0 else 0.0
+
+
+@intrinsic
+def _sincos(typingctx, x):
+    """``(sin x, cos x)`` from one call of the C library's ``sincos`` (float64).
+
+    LLVM turns a scalar ``np.sin`` and ``np.cos`` of one value into this call
+    anyway; calling it by name keeps it when the loop around it would
+    otherwise be vectorized into separate sin and cos calls, twice the time
+    (both give the same bits).
+    """
+    if x != types.float64:
+        return None
+
+    def codegen(context, builder, signature, args):
+        dbl = ir.DoubleType()
+        fn = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(ir.VoidType(), [dbl, dbl.as_pointer(), dbl.as_pointer()]), "sincos")
+        sin_p = cgutils.alloca_once(builder, dbl)
+        cos_p = cgutils.alloca_once(builder, dbl)
+        builder.call(fn, [args[0], sin_p, cos_p])
+        return context.make_tuple(builder, signature.return_type, [builder.load(sin_p), builder.load(cos_p)])
+
+    return types.UniTuple(types.float64, 2)(types.float64), codegen
+
+
+@numba.njit(**_JIT)
+def _concentric(a: float, b: float) -> tuple[float, float]:
+    r, phi = _concentric_polar(a, b)
+    sin_phi, cos_phi = _sincos(phi)
+    return r * cos_phi, r * sin_phi
 
 
 @numba.njit(**_JIT)
@@ -467,6 +504,23 @@ def _sobol_kernel(p0, lo, hi, spp, m, seed_key, base_pts, lens, motion, square, 
 
 
 @numba.njit(**_JIT)
+def _net5_scramble(key: np.uint64, m: int, cols: np.ndarray, lcol: np.ndarray, sc: np.ndarray) -> None:
+    """One pixel's scrambled generator: ``sc[d, l] = L_d C_d`` column l (l < m) and
+    ``sc[d, m]`` the digital shift ``e_d``, for the rows d = x, y, u, v, t of ``cols``."""
+    for d in range(5):
+        for b in range(m):  # column b of L_d: bit b set, random bits below it
+            one = np.uint64(1) << np.uint64(b)
+            lcol[b] = one | (_rand(key, _S_NET5 + d, b) & (one - np.uint64(1)))
+        for l in range(m):  # XOR of L_d's columns at the set bits of C_d's column l
+            c = cols[d, l]
+            acc = np.uint64(0)
+            for b in range(m):
+                acc ^= lcol[b] & (np.uint64(0) - ((c >> np.uint64(b)) & np.uint64(1)))
+            sc[d, l] = acc
+        sc[d, m] = _top_bits(_rand(key, _S_NET5 + d, m), m)
+
+
+@numba.njit(**_JIT)
 def _net5_kernel(p0, lo, hi, spp, m, seed_key, cols, lens, motion, square, ox, oy, ou, ov, ot):
     """The t-ordered (t, m, 5)-net: ``cols`` (5, m) holds the m-digit generator
     columns of x, y, u, v (4D Sobol) and t (the index, column l = 2^l).
@@ -476,51 +530,68 @@ def _net5_kernel(p0, lo, hi, spp, m, seed_key, cols, lens, motion, square, ox, o
     the top k digits of y depend only on the top k digits of x, bijectively,
     and every elementary interval maps onto one of the same shape. Applied to
     the generator columns once per pixel (``L_d C_d``), the points then follow
-    in Gray-code order with one XOR per dimension, and each is written at its
-    scrambled t stratum, which is its t-sorted position (Munkberg11 §5).
+    in Gray-code order with one XOR per dimension, and each point's digits go
+    to its scrambled t stratum, which is its t-sorted position (Munkberg11 §5).
+    The jitter bits below the strata are hashed from that position, so a
+    second pass over the positions in order makes the samples: hashes, fixed
+    point to float and the lens map run over a whole pixel at a time.
     """
-    jb = _FRAC_BITS - m
+    jb = np.uint64(_FRAC_BITS - m)  # jitter bits below the finest stratum (8..24)
+    drop = np.uint64(64 - _FRAC_BITS + m)  # h >> drop: the top jb bits of h
+    low = np.uint64(_FRAC_BITS)  # the next jb bits: (h << 24) >> drop
     lcol = np.empty(max(m, 1), dtype=np.uint64)
-    sc = np.empty((5, max(m, 1)), dtype=np.uint64)
-    cur = np.empty(5, dtype=np.uint64)
+    sc = np.empty((5, m + 1), dtype=np.uint64)
+    digits = np.empty((4, spp), dtype=np.uint64)  # x, y, u, v digits by t stratum
+    tz = np.zeros(spp, dtype=np.int64)  # index k flips bit tz[k] of the Gray code
+    for k in range(1, spp):
+        while not (k >> tz[k]) & 1:
+            tz[k] += 1
+    rad = np.empty(spp)
+    ang = np.empty(spp)
     for lp in range(lo, hi):
         key = _pixel_key(seed_key, p0 + lp)
-        base = lp * spp
-        for d in range(5):
-            for b in range(m):  # column b of L_d: bit b set, random bits below it
-                one = np.uint64(1) << np.uint64(b)
-                lcol[b] = one | (_rand(key, _S_NET5 + d, b) & (one - np.uint64(1)))
-            for l in range(m):  # L_d C_d: XOR of L_d's columns at the set bits of C_d's column l
-                c = cols[d, l]
-                acc = np.uint64(0)
-                for b in range(m):
-                    if (c >> np.uint64(b)) & np.uint64(1):
-                        acc ^= lcol[b]
-                sc[d, l] = acc
-            cur[d] = _top_bits(_rand(key, _S_NET5 + d, m), m)  # the digital shift e_d
+        _net5_scramble(key, m, cols, lcol, sc)
+        cx, cy, ca, cb, ct = sc[0, m], sc[1, m], sc[2, m], sc[3, m], sc[4, m]
         for k in range(spp):
             if k:
-                b = 0
-                while not (k >> b) & 1:
-                    b += 1
-                for d in range(5):
-                    cur[d] ^= sc[d, b]
-            s = np.int64(cur[4])
+                b = tz[k]
+                cx ^= sc[0, b]
+                cy ^= sc[1, b]
+                ca ^= sc[2, b]
+                cb ^= sc[3, b]
+                ct ^= sc[4, b]
+            digits[0, ct] = cx
+            digits[1, ct] = cy
+            digits[2, ct] = ca
+            digits[3, ct] = cb
+        base = lp * spp
+        xo, yo, to = ox[base:base + spp], oy[base:base + spp], ot[base:base + spp]
+        for s in range(spp):
             h = _rand(key, _S_NET5 + 5, s)
-            ox[base + s] = _fixed_to_unit((cur[0] << np.uint64(jb)) | _top_bits(h, jb))
-            oy[base + s] = _fixed_to_unit((cur[1] << np.uint64(jb)) | _top_bits(h << np.uint64(24), jb))
-            if motion:
-                tj = _top_bits(_rand(key, _S_NET5 + 7, s), jb)
-                ot[base + s] = _fixed_to_unit((cur[4] << np.uint64(jb)) | tj)
-            else:
-                ot[base + s] = 0.5
-            if lens:
+            xo[s] = _fixed_to_unit((digits[0, s] << jb) | (h >> drop))
+            yo[s] = _fixed_to_unit((digits[1, s] << jb) | ((h << low) >> drop))
+        if motion:
+            for s in range(spp):
+                to[s] = _fixed_to_unit((np.uint64(s) << jb) | (_rand(key, _S_NET5 + 7, s) >> drop))
+        else:
+            to[:] = 0.5
+        if lens:
+            uo, vo = ou[base:base + spp], ov[base:base + spp]
+            for s in range(spp):
                 g = _rand(key, _S_NET5 + 6, s)
-                a = _fixed_to_unit((cur[2] << np.uint64(jb)) | _top_bits(g, jb))
-                bb = _fixed_to_unit((cur[3] << np.uint64(jb)) | _top_bits(g << np.uint64(24), jb))
-                u, v = _lens_point(a, bb, square)
-                ou[base + s] = u
-                ov[base + s] = v
+                rad[s] = _fixed_to_unit((digits[2, s] << jb) | (g >> drop))
+                ang[s] = _fixed_to_unit((digits[3, s] << jb) | ((g << low) >> drop))
+            if square:
+                for s in range(spp):
+                    uo[s] = 2.0 * rad[s] - 1.0
+                    vo[s] = 2.0 * ang[s] - 1.0
+            else:
+                for s in range(spp):
+                    rad[s], ang[s] = _concentric_polar(rad[s], ang[s])
+                for s in range(spp):
+                    sin_phi, cos_phi = _sincos(ang[s])
+                    uo[s] = rad[s] * cos_phi
+                    vo[s] = rad[s] * sin_phi
 
 
 def net5_columns(m: int) -> np.ndarray:
