@@ -231,11 +231,16 @@ def _pixel_key(seed_key: np.uint64, p: np.int64) -> np.uint64:
     return _mix(seed_key ^ _mix(np.uint64(p) * _GOLDEN + _PIX_SALT))
 
 
+@numba.njit("uint64(int64, int64)", **_JIT)
+def _counter(stream: np.int64, i: np.int64) -> np.uint64:
+    """The hashed counter of (stream, index), the same for every pixel."""
+    return ((np.uint64(stream) << np.uint64(40)) + np.uint64(i) + np.uint64(1)) * _GOLDEN
+
+
 @numba.njit("uint64(uint64, int64, int64)", **_JIT)
 def _rand(key: np.uint64, stream: np.int64, i: np.int64) -> np.uint64:
     """64 random bits for (pixel key, stream, index)."""
-    ctr = (np.uint64(stream) << np.uint64(40)) + np.uint64(i) + np.uint64(1)
-    return _mix(key + ctr * _GOLDEN)
+    return _mix(key + _counter(stream, i))
 
 
 @numba.njit("uint64(uint64, int64)", **_JIT)
@@ -503,21 +508,44 @@ def _sobol_kernel(p0, lo, hi, spp, m, seed_key, base_pts, lens, motion, square, 
                 ov[base + s] = v
 
 
+_DIGITS = np.uint64(0xFFFF)  # a dimension's digits (m <= 16) in a packed word
+_D16, _D32, _D48 = np.uint64(16), np.uint64(32), np.uint64(48)
+
+
 @numba.njit(**_JIT)
-def _net5_scramble(key: np.uint64, m: int, cols: np.ndarray, lcol: np.ndarray, sc: np.ndarray) -> None:
+def _net5_tables(m: int, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """What every pixel's scramble shares: the counters of its random draws
+    ``(d, b)``, b <= m, of stream ``_S_NET5 + d`` flattened, and the bits of
+    ``cols`` as masks, ``bits[d, l, b]`` all ones where column l has bit b."""
+    ctr = np.empty(5 * (m + 1), dtype=np.uint64)
+    bits = np.empty((5, m, m), dtype=np.uint64)
+    for d in range(5):
+        for b in range(m + 1):
+            ctr[d * (m + 1) + b] = _counter(_S_NET5 + d, b)
+        for l in range(m):
+            for b in range(m):
+                bits[d, l, b] = np.uint64(0) - ((cols[d, l] >> np.uint64(b)) & np.uint64(1))
+    return ctr, bits
+
+
+@numba.njit(**_JIT)
+def _net5_scramble(key: np.uint64, m: int, ctr: np.ndarray, bits: np.ndarray, rnd: np.ndarray, lcol: np.ndarray,
+                   sc: np.ndarray) -> None:
     """One pixel's scrambled generator: ``sc[d, l] = L_d C_d`` column l (l < m) and
-    ``sc[d, m]`` the digital shift ``e_d``, for the rows d = x, y, u, v, t of ``cols``."""
+    ``sc[d, m]`` the digital shift ``e_d``, for the rows d = x, y, u, v, t of the
+    generator whose bits and draws :func:`_net5_tables` gives."""
+    for i in range(ctr.size):  # the pixel's draws, one vectorized loop
+        rnd[i] = _mix(key + ctr[i])
     for d in range(5):
         for b in range(m):  # column b of L_d: bit b set, random bits below it
             one = np.uint64(1) << np.uint64(b)
-            lcol[b] = one | (_rand(key, _S_NET5 + d, b) & (one - np.uint64(1)))
+            lcol[b] = one | (rnd[d * (m + 1) + b] & (one - np.uint64(1)))
         for l in range(m):  # XOR of L_d's columns at the set bits of C_d's column l
-            c = cols[d, l]
             acc = np.uint64(0)
             for b in range(m):
-                acc ^= lcol[b] & (np.uint64(0) - ((c >> np.uint64(b)) & np.uint64(1)))
+                acc ^= lcol[b] & bits[d, l, b]
             sc[d, l] = acc
-        sc[d, m] = _top_bits(_rand(key, _S_NET5 + d, m), m)
+        sc[d, m] = _top_bits(rnd[d * (m + 1) + m], m)
 
 
 @numba.njit(**_JIT)
@@ -539,9 +567,12 @@ def _net5_kernel(p0, lo, hi, spp, m, seed_key, cols, lens, motion, square, ox, o
     jb = np.uint64(_FRAC_BITS - m)  # jitter bits below the finest stratum (8..24)
     drop = np.uint64(64 - _FRAC_BITS + m)  # h >> drop: the top jb bits of h
     low = np.uint64(_FRAC_BITS)  # the next jb bits: (h << 24) >> drop
+    ctr, bits = _net5_tables(m, cols)
+    rnd = np.empty(ctr.size, dtype=np.uint64)
     lcol = np.empty(max(m, 1), dtype=np.uint64)
     sc = np.empty((5, m + 1), dtype=np.uint64)
-    digits = np.empty((4, spp), dtype=np.uint64)  # x, y, u, v digits by t stratum
+    digits = np.empty(spp, dtype=np.uint64)  # x, y, u, v digits by t stratum, 16 bits each
+    packed = np.empty(m + 1, dtype=np.uint64)  # the columns and shift of x, y, u, v so packed
     tz = np.zeros(spp, dtype=np.int64)  # index k flips bit tz[k] of the Gray code
     for k in range(1, spp):
         while not (k >> tz[k]) & 1:
@@ -550,26 +581,21 @@ def _net5_kernel(p0, lo, hi, spp, m, seed_key, cols, lens, motion, square, ox, o
     ang = np.empty(spp)
     for lp in range(lo, hi):
         key = _pixel_key(seed_key, p0 + lp)
-        _net5_scramble(key, m, cols, lcol, sc)
-        cx, cy, ca, cb, ct = sc[0, m], sc[1, m], sc[2, m], sc[3, m], sc[4, m]
+        _net5_scramble(key, m, ctr, bits, rnd, lcol, sc)
+        for l in range(m + 1):
+            packed[l] = sc[0, l] | (sc[1, l] << _D16) | (sc[2, l] << _D32) | (sc[3, l] << _D48)
+        cur, ct = packed[m], sc[4, m]
         for k in range(spp):
             if k:
-                b = tz[k]
-                cx ^= sc[0, b]
-                cy ^= sc[1, b]
-                ca ^= sc[2, b]
-                cb ^= sc[3, b]
-                ct ^= sc[4, b]
-            digits[0, ct] = cx
-            digits[1, ct] = cy
-            digits[2, ct] = ca
-            digits[3, ct] = cb
+                cur ^= packed[tz[k]]
+                ct ^= sc[4, tz[k]]
+            digits[ct] = cur
         base = lp * spp
         xo, yo, to = ox[base:base + spp], oy[base:base + spp], ot[base:base + spp]
         for s in range(spp):
             h = _rand(key, _S_NET5 + 5, s)
-            xo[s] = _fixed_to_unit((digits[0, s] << jb) | (h >> drop))
-            yo[s] = _fixed_to_unit((digits[1, s] << jb) | ((h << low) >> drop))
+            xo[s] = _fixed_to_unit(((digits[s] & _DIGITS) << jb) | (h >> drop))
+            yo[s] = _fixed_to_unit((((digits[s] >> _D16) & _DIGITS) << jb) | ((h << low) >> drop))
         if motion:
             for s in range(spp):
                 to[s] = _fixed_to_unit((np.uint64(s) << jb) | (_rand(key, _S_NET5 + 7, s) >> drop))
@@ -579,8 +605,8 @@ def _net5_kernel(p0, lo, hi, spp, m, seed_key, cols, lens, motion, square, ox, o
             uo, vo = ou[base:base + spp], ov[base:base + spp]
             for s in range(spp):
                 g = _rand(key, _S_NET5 + 6, s)
-                rad[s] = _fixed_to_unit((digits[2, s] << jb) | (g >> drop))
-                ang[s] = _fixed_to_unit((digits[3, s] << jb) | ((g << low) >> drop))
+                rad[s] = _fixed_to_unit((((digits[s] >> _D32) & _DIGITS) << jb) | (g >> drop))
+                ang[s] = _fixed_to_unit(((digits[s] >> _D48) << jb) | ((g << low) >> drop))
             if square:
                 for s in range(spp):
                     uo[s] = 2.0 * rad[s] - 1.0
