@@ -299,17 +299,23 @@ def _sincos(typingctx, x):
 
 
 @numba.njit(**_JIT)
-def _concentric(a: float, b: float) -> tuple[float, float]:
-    r, phi = _concentric_polar(a, b)
-    sin_phi, cos_phi = _sincos(phi)
-    return r * cos_phi, r * sin_phi
+def _lens_map(a: np.ndarray, b: np.ndarray, square: bool, u: np.ndarray, v: np.ndarray) -> None:
+    """Lens points ``(u, v)`` of the unit-square points ``(a, b)`` (overwritten).
 
-
-@numba.njit(**_JIT)
-def _lens_point(a: float, b: float, square: bool) -> tuple[float, float]:
+    The disk map runs in two loops, the branch-free radii and angles
+    (vectorized) and then one scalar ``sincos`` call per point.
+    """
     if square:
-        return 2.0 * a - 1.0, 2.0 * b - 1.0
-    return _concentric(a, b)
+        for i in range(a.size):
+            u[i] = 2.0 * a[i] - 1.0
+            v[i] = 2.0 * b[i] - 1.0
+        return
+    for i in range(a.size):
+        a[i], b[i] = _concentric_polar(a[i], b[i])
+    for i in range(a.size):
+        sin_phi, cos_phi = _sincos(b[i])
+        u[i] = a[i] * cos_phi
+        v[i] = a[i] * sin_phi
 
 
 @numba.njit(**_JIT)
@@ -317,8 +323,7 @@ def _concentric_many(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarr
     """Kernel concentric map on arrays (used to test it against :func:`concentric_disk`)."""
     u = np.empty(a.size)
     v = np.empty(a.size)
-    for i in range(a.size):
-        u[i], v[i] = _concentric(a[i], b[i])
+    _lens_map(a.copy(), b.copy(), False, u, v)
     return u, v
 
 
@@ -385,10 +390,12 @@ _CHUNK = 4096  # pixels per thread-pool work item (a screen region of 128 rows i
 
 @numba.njit(**_JIT)
 def _net_kernel(
-    p0, lo, hi, spp, m, seed_key, xs, ys, lb, lens, motion, square, ox, oy, ou, ov, ot
+    p0, lo, hi, spp, m, seed_key, xs, ys, lens_y, lens, motion, square, ox, oy, ou, ov, ot
 ):
     jb = _FRAC_BITS - m  # jitter bits below the finest stratum
     perm = np.empty(spp, dtype=np.int64)
+    la = np.empty(spp)
+    lb = np.empty(spp)
     for lp in range(lo, hi):
         key = _pixel_key(seed_key, p0 + lp)
         mx = _top_bits(_rand(key, _S_MASK_X, 0), m)
@@ -416,17 +423,17 @@ def _net_kernel(
             for s in range(spp):
                 i = perm[s]
                 h = _rand(key, _S_JIT_AB, s)
-                ai = ((np.uint64(i) ^ ma) << np.uint64(jb)) | _top_bits(h, jb)
-                bi = ((lb[i] ^ mb) << np.uint64(jb)) | _top_bits(h << np.uint64(24), jb)
-                u, v = _lens_point(_fixed_to_unit(ai), _fixed_to_unit(bi), square)
-                ou[base + s] = u
-                ov[base + s] = v
+                la[s] = _fixed_to_unit(((np.uint64(i) ^ ma) << np.uint64(jb)) | _top_bits(h, jb))
+                lb[s] = _fixed_to_unit(((lens_y[i] ^ mb) << np.uint64(jb)) | _top_bits(h << np.uint64(24), jb))
+            _lens_map(la, lb, square, ou[base:base + spp], ov[base:base + spp])
 
 
 @numba.njit(**_JIT)
 def _random_kernel(p0, lo, hi, spp, seed_key, lens, motion, square, ox, oy, ou, ov, ot):
     nb = _FRAC_BITS
     tkeys = np.empty(spp, dtype=np.uint64)
+    la = np.empty(spp)
+    lb = np.empty(spp)
     for lp in range(lo, hi):
         key = _pixel_key(seed_key, p0 + lp)
         base = lp * spp
@@ -439,11 +446,10 @@ def _random_kernel(p0, lo, hi, spp, seed_key, lens, motion, square, ox, oy, ou, 
             oy[base + s] = _fixed_to_unit(_top_bits(_rand(key, _S_RND_Y, i), nb))
             ot[base + s] = _fixed_to_unit(tkeys[i]) if motion else 0.5
             if lens:
-                a = _fixed_to_unit(_top_bits(_rand(key, _S_RND_A, i), nb))
-                b = _fixed_to_unit(_top_bits(_rand(key, _S_RND_B, i), nb))
-                u, v = _lens_point(a, b, square)
-                ou[base + s] = u
-                ov[base + s] = v
+                la[s] = _fixed_to_unit(_top_bits(_rand(key, _S_RND_A, i), nb))
+                lb[s] = _fixed_to_unit(_top_bits(_rand(key, _S_RND_B, i), nb))
+        if lens:
+            _lens_map(la, lb, square, ou[base:base + spp], ov[base:base + spp])
 
 
 @numba.njit(**_JIT)
@@ -454,6 +460,8 @@ def _stratified_kernel(p0, lo, hi, spp, seed_key, lens, motion, square, ox, oy, 
     nb = _FRAC_BITS
     perm = np.empty(spp, dtype=np.int64)
     strata = np.empty((4, spp), dtype=np.int64)
+    la = np.empty(spp)
+    lb = np.empty(spp)
     for lp in range(lo, hi):
         key = _pixel_key(seed_key, p0 + lp)
         base = lp * spp
@@ -471,9 +479,10 @@ def _stratified_kernel(p0, lo, hi, spp, seed_key, lens, motion, square, ox, oy, 
             if lens:
                 ja = _fixed_to_unit(_top_bits(_rand(key, _S_STRAT + 3, s), nb))
                 jb = _fixed_to_unit(_top_bits(_rand(key, _S_STRAT + 4, s), nb))
-                u, v = _lens_point((strata[2, s] + ja) / spp, (strata[3, s] + jb) / spp, square)
-                ou[base + s] = u
-                ov[base + s] = v
+                la[s] = (strata[2, s] + ja) / spp
+                lb[s] = (strata[3, s] + jb) / spp
+        if lens:
+            _lens_map(la, lb, square, ou[base:base + spp], ov[base:base + spp])
 
 
 @numba.njit(**_JIT)
@@ -485,6 +494,8 @@ def _sobol_kernel(p0, lo, hi, spp, m, seed_key, base_pts, lens, motion, square, 
     nb = _FRAC_BITS
     tkeys = np.empty(spp, dtype=np.uint64)
     coords = np.empty((5, spp), dtype=np.float64)
+    la = np.empty(spp)
+    lb = np.empty(spp)
     for lp in range(lo, hi):
         key = _pixel_key(seed_key, p0 + lp)
         base = lp * spp
@@ -502,10 +513,10 @@ def _sobol_kernel(p0, lo, hi, spp, m, seed_key, base_pts, lens, motion, square, 
             ox[base + s] = coords[0, i]
             oy[base + s] = coords[1, i]
             ot[base + s] = coords[2, i] if motion else 0.5
-            if lens:
-                u, v = _lens_point(coords[3, i], coords[4, i], square)
-                ou[base + s] = u
-                ov[base + s] = v
+            la[s] = coords[3, i]
+            lb[s] = coords[4, i]
+        if lens:
+            _lens_map(la, lb, square, ou[base:base + spp], ov[base:base + spp])
 
 
 _DIGITS = np.uint64(0xFFFF)  # a dimension's digits (m <= 16) in a packed word
@@ -577,8 +588,8 @@ def _net5_kernel(p0, lo, hi, spp, m, seed_key, cols, lens, motion, square, ox, o
     for k in range(1, spp):
         while not (k >> tz[k]) & 1:
             tz[k] += 1
-    rad = np.empty(spp)
-    ang = np.empty(spp)
+    la = np.empty(spp)
+    lb = np.empty(spp)
     for lp in range(lo, hi):
         key = _pixel_key(seed_key, p0 + lp)
         _net5_scramble(key, m, ctr, bits, rnd, lcol, sc)
@@ -602,22 +613,11 @@ def _net5_kernel(p0, lo, hi, spp, m, seed_key, cols, lens, motion, square, ox, o
         else:
             to[:] = 0.5
         if lens:
-            uo, vo = ou[base:base + spp], ov[base:base + spp]
             for s in range(spp):
                 g = _rand(key, _S_NET5 + 6, s)
-                rad[s] = _fixed_to_unit((((digits[s] >> _D32) & _DIGITS) << jb) | (g >> drop))
-                ang[s] = _fixed_to_unit(((digits[s] >> _D48) << jb) | ((g << low) >> drop))
-            if square:
-                for s in range(spp):
-                    uo[s] = 2.0 * rad[s] - 1.0
-                    vo[s] = 2.0 * ang[s] - 1.0
-            else:
-                for s in range(spp):
-                    rad[s], ang[s] = _concentric_polar(rad[s], ang[s])
-                for s in range(spp):
-                    sin_phi, cos_phi = _sincos(ang[s])
-                    uo[s] = rad[s] * cos_phi
-                    vo[s] = rad[s] * sin_phi
+                la[s] = _fixed_to_unit((((digits[s] >> _D32) & _DIGITS) << jb) | (g >> drop))
+                lb[s] = _fixed_to_unit(((digits[s] >> _D48) << jb) | ((g << low) >> drop))
+            _lens_map(la, lb, square, ou[base:base + spp], ov[base:base + spp])
 
 
 def net5_columns(m: int) -> np.ndarray:
