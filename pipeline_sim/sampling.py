@@ -523,20 +523,14 @@ _DIGITS = np.uint64(0xFFFF)  # a dimension's digits (m <= 16) in a packed word
 _D16, _D32, _D48 = np.uint64(16), np.uint64(32), np.uint64(48)
 
 
-@numba.njit(**_JIT)
-def _net5_tables(m: int, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _net5_tables(m: int) -> tuple[np.ndarray, np.ndarray]:
     """What every pixel's scramble shares: the counters of its random draws
-    ``(d, b)``, b <= m, of stream ``_S_NET5 + d`` flattened, and the bits of
-    ``cols`` as masks, ``bits[d, l, b]`` all ones where column l has bit b."""
-    ctr = np.empty(5 * (m + 1), dtype=np.uint64)
-    bits = np.empty((5, m, m), dtype=np.uint64)
-    for d in range(5):
-        for b in range(m + 1):
-            ctr[d * (m + 1) + b] = _counter(_S_NET5 + d, b)
-        for l in range(m):
-            for b in range(m):
-                bits[d, l, b] = np.uint64(0) - ((cols[d, l] >> np.uint64(b)) & np.uint64(1))
-    return ctr, bits
+    ``(d, b)``, b <= m, of stream ``_S_NET5 + d``, flattened, and the digits of
+    the generator columns (:func:`net5_columns`) as masks, ``bits[d, l, b]``
+    all ones where column l of dimension d has digit b."""
+    ctr = np.array([_counter(_S_NET5 + d, b) for d in range(5) for b in range(m + 1)], dtype=np.uint64)
+    digit = (net5_columns(m)[:, :, None] >> np.arange(m, dtype=np.uint64)) & np.uint64(1)
+    return ctr, np.uint64(0) - digit
 
 
 @numba.njit(**_JIT)
@@ -544,7 +538,7 @@ def _net5_scramble(key: np.uint64, m: int, ctr: np.ndarray, bits: np.ndarray, rn
                    sc: np.ndarray) -> None:
     """One pixel's scrambled generator: ``sc[d, l] = L_d C_d`` column l (l < m) and
     ``sc[d, m]`` the digital shift ``e_d``, for the rows d = x, y, u, v, t of the
-    generator whose bits and draws :func:`_net5_tables` gives."""
+    generator whose digits and draws :func:`_net5_tables` gives."""
     for i in range(ctr.size):  # the pixel's draws, one vectorized loop
         rnd[i] = _mix(key + ctr[i])
     for d in range(5):
@@ -560,9 +554,10 @@ def _net5_scramble(key: np.uint64, m: int, ctr: np.ndarray, bits: np.ndarray, rn
 
 
 @numba.njit(**_JIT)
-def _net5_kernel(p0, lo, hi, spp, m, seed_key, cols, lens, motion, square, ox, oy, ou, ov, ot):
-    """The t-ordered (t, m, 5)-net: ``cols`` (5, m) holds the m-digit generator
-    columns of x, y, u, v (4D Sobol) and t (the index, column l = 2^l).
+def _net5_kernel(p0, lo, hi, spp, m, seed_key, ctr, bits, lens, motion, square, ox, oy, ou, ov, ot):
+    """The t-ordered (t, m, 5)-net: ``bits`` (5, m, m) holds the digits of the
+    generator columns of x, y, u, v (4D Sobol) and t (the index, column l = 2^l)
+    and ``ctr`` the counters of the scramble draws (:func:`_net5_tables`).
 
     Per pixel and dimension d a random scramble ``y = L_d x ^ e_d`` (Matousek
     1998): ``L_d`` is lower triangular in digit order with a unit diagonal, so
@@ -578,7 +573,6 @@ def _net5_kernel(p0, lo, hi, spp, m, seed_key, cols, lens, motion, square, ox, o
     jb = np.uint64(_FRAC_BITS - m)  # jitter bits below the finest stratum (8..24)
     drop = np.uint64(64 - _FRAC_BITS + m)  # h >> drop: the top jb bits of h
     low = np.uint64(_FRAC_BITS)  # the next jb bits: (h << 24) >> drop
-    ctr, bits = _net5_tables(m, cols)
     rnd = np.empty(ctr.size, dtype=np.uint64)
     lcol = np.empty(max(m, 1), dtype=np.uint64)
     sc = np.empty((5, m + 1), dtype=np.uint64)
@@ -611,7 +605,8 @@ def _net5_kernel(p0, lo, hi, spp, m, seed_key, cols, lens, motion, square, ox, o
             for s in range(spp):
                 to[s] = _fixed_to_unit((np.uint64(s) << jb) | (_rand(key, _S_NET5 + 7, s) >> drop))
         else:
-            to[:] = 0.5
+            for s in range(spp):
+                to[s] = 0.5
         if lens:
             for s in range(spp):
                 g = _rand(key, _S_NET5 + 6, s)
@@ -908,7 +903,7 @@ def make_samples(
                          ox, oy, ou, ov, ot)
         elif pattern == "net5":
             m = spp.bit_length() - 1
-            _run_chunked(_net5_kernel, p0, npix, spp, m, key, net5_columns(m), lens, motion, square,
+            _run_chunked(_net5_kernel, p0, npix, spp, m, key, *_net5_tables(m), lens, motion, square,
                          ox, oy, ou, ov, ot)
         elif pattern == "sobol":
             m = spp.bit_length() - 1
