@@ -52,6 +52,9 @@ from math import comb
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba.core import cgutils, types
+from numba.extending import intrinsic
 
 from pipeline_sim.errors import UserError, did_you_mean
 
@@ -228,11 +231,16 @@ def _pixel_key(seed_key: np.uint64, p: np.int64) -> np.uint64:
     return _mix(seed_key ^ _mix(np.uint64(p) * _GOLDEN + _PIX_SALT))
 
 
+@numba.njit("uint64(int64, int64)", **_JIT)
+def _counter(stream: np.int64, i: np.int64) -> np.uint64:
+    """The hashed counter of (stream, index), the same for every pixel."""
+    return ((np.uint64(stream) << np.uint64(40)) + np.uint64(i) + np.uint64(1)) * _GOLDEN
+
+
 @numba.njit("uint64(uint64, int64, int64)", **_JIT)
 def _rand(key: np.uint64, stream: np.int64, i: np.int64) -> np.uint64:
     """64 random bits for (pixel key, stream, index)."""
-    ctr = (np.uint64(stream) << np.uint64(40)) + np.uint64(i) + np.uint64(1)
-    return _mix(key + ctr * _GOLDEN)
+    return _mix(key + _counter(stream, i))
 
 
 @numba.njit("uint64(uint64, int64)", **_JIT)
@@ -248,26 +256,66 @@ def _fixed_to_unit(v: np.uint64) -> np.float64:
     return np.float64(v) * (1.0 / 16777216.0)
 
 
-@numba.njit(**_JIT)
-def _concentric(a: float, b: float) -> tuple[float, float]:
+@numba.njit(error_model="numpy", **_JIT)
+def _concentric_polar(a: float, b: float) -> tuple[float, float]:
+    """Radius and angle of the Shirley-Chiu concentric map of ``(a, b)``, branch-free.
+
+    Both wedges' angles are computed and one selected (the other may divide by
+    zero, hence numpy's error model: an inf or NaN that is never used); the
+    centre gets angle 0, so ``r cos phi`` and ``r sin phi`` are +0 there.
+    """
     sa = 2.0 * a - 1.0
     sb = 2.0 * b - 1.0
-    if sa == 0.0 and sb == 0.0:
-        return 0.0, 0.0
-    if abs(sa) > abs(sb):
-        r = sa
-        phi = (np.pi / 4) * (sb / sa)
-    else:
-        r = sb
-        phi = (np.pi / 2) - (np.pi / 4) * (sa / sb)
-    return r * np.cos(phi), r * np.sin(phi)
+    phi_a = (np.pi / 4) * (sb / sa)
+    phi_b = (np.pi / 2) - (np.pi / 4) * (sa / sb)
+    first = abs(sa) > abs(sb)
+    r = sa if first else sb
+    phi = phi_a if first else phi_b
+    return r, phi if r != 0.0 else 0.0
+
+
+@intrinsic
+def _sincos(typingctx, x):
+    """``(sin x, cos x)`` from one call of the C library's ``sincos`` (float64).
+
+    LLVM turns a scalar ``np.sin`` and ``np.cos`` of one value into this call
+    anyway; calling it by name keeps it when the loop around it would
+    otherwise be vectorized into separate sin and cos calls, twice the time
+    (both give the same bits).
+    """
+    if x != types.float64:
+        return None
+
+    def codegen(context, builder, signature, args):
+        dbl = ir.DoubleType()
+        fn = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(ir.VoidType(), [dbl, dbl.as_pointer(), dbl.as_pointer()]), "sincos")
+        sin_p = cgutils.alloca_once(builder, dbl)
+        cos_p = cgutils.alloca_once(builder, dbl)
+        builder.call(fn, [args[0], sin_p, cos_p])
+        return context.make_tuple(builder, signature.return_type, [builder.load(sin_p), builder.load(cos_p)])
+
+    return types.UniTuple(types.float64, 2)(types.float64), codegen
 
 
 @numba.njit(**_JIT)
-def _lens_point(a: float, b: float, square: bool) -> tuple[float, float]:
+def _lens_map(a: np.ndarray, b: np.ndarray, square: bool, u: np.ndarray, v: np.ndarray) -> None:
+    """Lens points ``(u, v)`` of the unit-square points ``(a, b)`` (overwritten).
+
+    The disk map runs in two loops, the branch-free radii and angles
+    (vectorized) and then one scalar ``sincos`` call per point.
+    """
     if square:
-        return 2.0 * a - 1.0, 2.0 * b - 1.0
-    return _concentric(a, b)
+        for i in range(a.size):
+            u[i] = 2.0 * a[i] - 1.0
+            v[i] = 2.0 * b[i] - 1.0
+        return
+    for i in range(a.size):
+        a[i], b[i] = _concentric_polar(a[i], b[i])
+    for i in range(a.size):
+        sin_phi, cos_phi = _sincos(b[i])
+        u[i] = a[i] * cos_phi
+        v[i] = a[i] * sin_phi
 
 
 @numba.njit(**_JIT)
@@ -275,8 +323,7 @@ def _concentric_many(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarr
     """Kernel concentric map on arrays (used to test it against :func:`concentric_disk`)."""
     u = np.empty(a.size)
     v = np.empty(a.size)
-    for i in range(a.size):
-        u[i], v[i] = _concentric(a[i], b[i])
+    _lens_map(a.copy(), b.copy(), False, u, v)
     return u, v
 
 
@@ -343,10 +390,12 @@ _CHUNK = 4096  # pixels per thread-pool work item (a screen region of 128 rows i
 
 @numba.njit(**_JIT)
 def _net_kernel(
-    p0, lo, hi, spp, m, seed_key, xs, ys, lb, lens, motion, square, ox, oy, ou, ov, ot
+    p0, lo, hi, spp, m, seed_key, xs, ys, lens_y, lens, motion, square, ox, oy, ou, ov, ot
 ):
     jb = _FRAC_BITS - m  # jitter bits below the finest stratum
     perm = np.empty(spp, dtype=np.int64)
+    la = np.empty(spp)
+    lb = np.empty(spp)
     for lp in range(lo, hi):
         key = _pixel_key(seed_key, p0 + lp)
         mx = _top_bits(_rand(key, _S_MASK_X, 0), m)
@@ -374,17 +423,17 @@ def _net_kernel(
             for s in range(spp):
                 i = perm[s]
                 h = _rand(key, _S_JIT_AB, s)
-                ai = ((np.uint64(i) ^ ma) << np.uint64(jb)) | _top_bits(h, jb)
-                bi = ((lb[i] ^ mb) << np.uint64(jb)) | _top_bits(h << np.uint64(24), jb)
-                u, v = _lens_point(_fixed_to_unit(ai), _fixed_to_unit(bi), square)
-                ou[base + s] = u
-                ov[base + s] = v
+                la[s] = _fixed_to_unit(((np.uint64(i) ^ ma) << np.uint64(jb)) | _top_bits(h, jb))
+                lb[s] = _fixed_to_unit(((lens_y[i] ^ mb) << np.uint64(jb)) | _top_bits(h << np.uint64(24), jb))
+            _lens_map(la, lb, square, ou[base:base + spp], ov[base:base + spp])
 
 
 @numba.njit(**_JIT)
 def _random_kernel(p0, lo, hi, spp, seed_key, lens, motion, square, ox, oy, ou, ov, ot):
     nb = _FRAC_BITS
     tkeys = np.empty(spp, dtype=np.uint64)
+    la = np.empty(spp)
+    lb = np.empty(spp)
     for lp in range(lo, hi):
         key = _pixel_key(seed_key, p0 + lp)
         base = lp * spp
@@ -397,11 +446,10 @@ def _random_kernel(p0, lo, hi, spp, seed_key, lens, motion, square, ox, oy, ou, 
             oy[base + s] = _fixed_to_unit(_top_bits(_rand(key, _S_RND_Y, i), nb))
             ot[base + s] = _fixed_to_unit(tkeys[i]) if motion else 0.5
             if lens:
-                a = _fixed_to_unit(_top_bits(_rand(key, _S_RND_A, i), nb))
-                b = _fixed_to_unit(_top_bits(_rand(key, _S_RND_B, i), nb))
-                u, v = _lens_point(a, b, square)
-                ou[base + s] = u
-                ov[base + s] = v
+                la[s] = _fixed_to_unit(_top_bits(_rand(key, _S_RND_A, i), nb))
+                lb[s] = _fixed_to_unit(_top_bits(_rand(key, _S_RND_B, i), nb))
+        if lens:
+            _lens_map(la, lb, square, ou[base:base + spp], ov[base:base + spp])
 
 
 @numba.njit(**_JIT)
@@ -412,6 +460,8 @@ def _stratified_kernel(p0, lo, hi, spp, seed_key, lens, motion, square, ox, oy, 
     nb = _FRAC_BITS
     perm = np.empty(spp, dtype=np.int64)
     strata = np.empty((4, spp), dtype=np.int64)
+    la = np.empty(spp)
+    lb = np.empty(spp)
     for lp in range(lo, hi):
         key = _pixel_key(seed_key, p0 + lp)
         base = lp * spp
@@ -429,9 +479,10 @@ def _stratified_kernel(p0, lo, hi, spp, seed_key, lens, motion, square, ox, oy, 
             if lens:
                 ja = _fixed_to_unit(_top_bits(_rand(key, _S_STRAT + 3, s), nb))
                 jb = _fixed_to_unit(_top_bits(_rand(key, _S_STRAT + 4, s), nb))
-                u, v = _lens_point((strata[2, s] + ja) / spp, (strata[3, s] + jb) / spp, square)
-                ou[base + s] = u
-                ov[base + s] = v
+                la[s] = (strata[2, s] + ja) / spp
+                lb[s] = (strata[3, s] + jb) / spp
+        if lens:
+            _lens_map(la, lb, square, ou[base:base + spp], ov[base:base + spp])
 
 
 @numba.njit(**_JIT)
@@ -443,6 +494,8 @@ def _sobol_kernel(p0, lo, hi, spp, m, seed_key, base_pts, lens, motion, square, 
     nb = _FRAC_BITS
     tkeys = np.empty(spp, dtype=np.uint64)
     coords = np.empty((5, spp), dtype=np.float64)
+    la = np.empty(spp)
+    lb = np.empty(spp)
     for lp in range(lo, hi):
         key = _pixel_key(seed_key, p0 + lp)
         base = lp * spp
@@ -460,67 +513,106 @@ def _sobol_kernel(p0, lo, hi, spp, m, seed_key, base_pts, lens, motion, square, 
             ox[base + s] = coords[0, i]
             oy[base + s] = coords[1, i]
             ot[base + s] = coords[2, i] if motion else 0.5
-            if lens:
-                u, v = _lens_point(coords[3, i], coords[4, i], square)
-                ou[base + s] = u
-                ov[base + s] = v
+            la[s] = coords[3, i]
+            lb[s] = coords[4, i]
+        if lens:
+            _lens_map(la, lb, square, ou[base:base + spp], ov[base:base + spp])
+
+
+_DIGITS = np.uint64(0xFFFF)  # a dimension's digits (m <= 16) in a packed word
+_D16, _D32, _D48 = np.uint64(16), np.uint64(32), np.uint64(48)
+
+
+def _net5_tables(m: int) -> tuple[np.ndarray, np.ndarray]:
+    """What every pixel's scramble shares: the counters of its random draws
+    ``(d, b)``, b <= m, of stream ``_S_NET5 + d``, flattened, and the digits of
+    the generator columns (:func:`net5_columns`) as masks, ``bits[d, l, b]``
+    all ones where column l of dimension d has digit b."""
+    ctr = np.array([_counter(_S_NET5 + d, b) for d in range(5) for b in range(m + 1)], dtype=np.uint64)
+    digit = (net5_columns(m)[:, :, None] >> np.arange(m, dtype=np.uint64)) & np.uint64(1)
+    return ctr, np.uint64(0) - digit
 
 
 @numba.njit(**_JIT)
-def _net5_kernel(p0, lo, hi, spp, m, seed_key, cols, lens, motion, square, ox, oy, ou, ov, ot):
-    """The t-ordered (t, m, 5)-net: ``cols`` (5, m) holds the m-digit generator
-    columns of x, y, u, v (4D Sobol) and t (the index, column l = 2^l).
+def _net5_scramble(key: np.uint64, m: int, ctr: np.ndarray, bits: np.ndarray, rnd: np.ndarray, lcol: np.ndarray,
+                   sc: np.ndarray) -> None:
+    """One pixel's scrambled generator: ``sc[d, l] = L_d C_d`` column l (l < m) and
+    ``sc[d, m]`` the digital shift ``e_d``, for the rows d = x, y, u, v, t of the
+    generator whose digits and draws :func:`_net5_tables` gives."""
+    for i in range(ctr.size):  # the pixel's draws, one vectorized loop
+        rnd[i] = _mix(key + ctr[i])
+    for d in range(5):
+        for b in range(m):  # column b of L_d: bit b set, random bits below it
+            one = np.uint64(1) << np.uint64(b)
+            lcol[b] = one | (rnd[d * (m + 1) + b] & (one - np.uint64(1)))
+        for l in range(m):  # XOR of L_d's columns at the set bits of C_d's column l
+            acc = np.uint64(0)
+            for b in range(m):
+                acc ^= lcol[b] & bits[d, l, b]
+            sc[d, l] = acc
+        sc[d, m] = _top_bits(rnd[d * (m + 1) + m], m)
+
+
+@numba.njit(**_JIT)
+def _net5_kernel(p0, lo, hi, spp, m, seed_key, ctr, bits, lens, motion, square, ox, oy, ou, ov, ot):
+    """The t-ordered (t, m, 5)-net: ``bits`` (5, m, m) holds the digits of the
+    generator columns of x, y, u, v (4D Sobol) and t (the index, column l = 2^l)
+    and ``ctr`` the counters of the scramble draws (:func:`_net5_tables`).
 
     Per pixel and dimension d a random scramble ``y = L_d x ^ e_d`` (Matousek
     1998): ``L_d`` is lower triangular in digit order with a unit diagonal, so
     the top k digits of y depend only on the top k digits of x, bijectively,
     and every elementary interval maps onto one of the same shape. Applied to
     the generator columns once per pixel (``L_d C_d``), the points then follow
-    in Gray-code order with one XOR per dimension, and each is written at its
-    scrambled t stratum, which is its t-sorted position (Munkberg11 §5).
+    in Gray-code order with one XOR per dimension, and each point's digits go
+    to its scrambled t stratum, which is its t-sorted position (Munkberg11 §5).
+    The jitter bits below the strata are hashed from that position, so a
+    second pass over the positions in order makes the samples: hashes, fixed
+    point to float and the lens map run over a whole pixel at a time.
     """
-    jb = _FRAC_BITS - m
+    jb = np.uint64(_FRAC_BITS - m)  # jitter bits below the finest stratum (8..24)
+    drop = np.uint64(64 - _FRAC_BITS + m)  # h >> drop: the top jb bits of h
+    low = np.uint64(_FRAC_BITS)  # the next jb bits: (h << 24) >> drop
+    rnd = np.empty(ctr.size, dtype=np.uint64)
     lcol = np.empty(max(m, 1), dtype=np.uint64)
-    sc = np.empty((5, max(m, 1)), dtype=np.uint64)
-    cur = np.empty(5, dtype=np.uint64)
+    sc = np.empty((5, m + 1), dtype=np.uint64)
+    digits = np.empty(spp, dtype=np.uint64)  # x, y, u, v digits by t stratum, 16 bits each
+    packed = np.empty(m + 1, dtype=np.uint64)  # the columns and shift of x, y, u, v so packed
+    tz = np.zeros(spp, dtype=np.int64)  # index k flips bit tz[k] of the Gray code
+    for k in range(1, spp):
+        while not (k >> tz[k]) & 1:
+            tz[k] += 1
+    la = np.empty(spp)
+    lb = np.empty(spp)
     for lp in range(lo, hi):
         key = _pixel_key(seed_key, p0 + lp)
-        base = lp * spp
-        for d in range(5):
-            for b in range(m):  # column b of L_d: bit b set, random bits below it
-                one = np.uint64(1) << np.uint64(b)
-                lcol[b] = one | (_rand(key, _S_NET5 + d, b) & (one - np.uint64(1)))
-            for l in range(m):  # L_d C_d: XOR of L_d's columns at the set bits of C_d's column l
-                c = cols[d, l]
-                acc = np.uint64(0)
-                for b in range(m):
-                    if (c >> np.uint64(b)) & np.uint64(1):
-                        acc ^= lcol[b]
-                sc[d, l] = acc
-            cur[d] = _top_bits(_rand(key, _S_NET5 + d, m), m)  # the digital shift e_d
+        _net5_scramble(key, m, ctr, bits, rnd, lcol, sc)
+        for l in range(m + 1):
+            packed[l] = sc[0, l] | (sc[1, l] << _D16) | (sc[2, l] << _D32) | (sc[3, l] << _D48)
+        cur, ct = packed[m], sc[4, m]
         for k in range(spp):
             if k:
-                b = 0
-                while not (k >> b) & 1:
-                    b += 1
-                for d in range(5):
-                    cur[d] ^= sc[d, b]
-            s = np.int64(cur[4])
+                cur ^= packed[tz[k]]
+                ct ^= sc[4, tz[k]]
+            digits[ct] = cur
+        base = lp * spp
+        xo, yo, to = ox[base:base + spp], oy[base:base + spp], ot[base:base + spp]
+        for s in range(spp):
             h = _rand(key, _S_NET5 + 5, s)
-            ox[base + s] = _fixed_to_unit((cur[0] << np.uint64(jb)) | _top_bits(h, jb))
-            oy[base + s] = _fixed_to_unit((cur[1] << np.uint64(jb)) | _top_bits(h << np.uint64(24), jb))
-            if motion:
-                tj = _top_bits(_rand(key, _S_NET5 + 7, s), jb)
-                ot[base + s] = _fixed_to_unit((cur[4] << np.uint64(jb)) | tj)
-            else:
-                ot[base + s] = 0.5
-            if lens:
+            xo[s] = _fixed_to_unit(((digits[s] & _DIGITS) << jb) | (h >> drop))
+            yo[s] = _fixed_to_unit((((digits[s] >> _D16) & _DIGITS) << jb) | ((h << low) >> drop))
+        if motion:
+            for s in range(spp):
+                to[s] = _fixed_to_unit((np.uint64(s) << jb) | (_rand(key, _S_NET5 + 7, s) >> drop))
+        else:
+            for s in range(spp):
+                to[s] = 0.5
+        if lens:
+            for s in range(spp):
                 g = _rand(key, _S_NET5 + 6, s)
-                a = _fixed_to_unit((cur[2] << np.uint64(jb)) | _top_bits(g, jb))
-                bb = _fixed_to_unit((cur[3] << np.uint64(jb)) | _top_bits(g << np.uint64(24), jb))
-                u, v = _lens_point(a, bb, square)
-                ou[base + s] = u
-                ov[base + s] = v
+                la[s] = _fixed_to_unit((((digits[s] >> _D32) & _DIGITS) << jb) | (g >> drop))
+                lb[s] = _fixed_to_unit(((digits[s] >> _D48) << jb) | ((g << low) >> drop))
+            _lens_map(la, lb, square, ou[base:base + spp], ov[base:base + spp])
 
 
 def net5_columns(m: int) -> np.ndarray:
@@ -811,7 +903,7 @@ def make_samples(
                          ox, oy, ou, ov, ot)
         elif pattern == "net5":
             m = spp.bit_length() - 1
-            _run_chunked(_net5_kernel, p0, npix, spp, m, key, net5_columns(m), lens, motion, square,
+            _run_chunked(_net5_kernel, p0, npix, spp, m, key, *_net5_tables(m), lens, motion, square,
                          ox, oy, ou, ov, ot)
         elif pattern == "sobol":
             m = spp.bit_length() - 1
