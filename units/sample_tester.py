@@ -602,55 +602,88 @@ def _positions(words, n_words, out):
 
 
 @nb.njit(cache=True)
-def _tile_major(width, height, row0, spp, tile_size, slot_major, x, y, u, v, t, tup, ax, ay, tu, tv, tt, ttup,
-                slot_lo, slot_hi):
-    """The samples in one of the sample tester's tile-major orders.
+def _tile_major(width, height, row0, spp, tile_size, x, y, u, v, t, tup, ax, ay, tu, tv, tt, ttup, slot_lo, slot_hi,
+                stats):
+    """The samples in the sample tester's two tile-major orders, one after the
+    other in each output array, in one pass over them.
 
     Every tile's samples become contiguous, from ``base = (ty * tile_size *
     width + tx * tile_size * h) * spp`` (w x h: the tile's size, smaller at
     the right and bottom edges). Within the tile, pixel (r, c) sample s (its
-    index in the pixel's t-ordered samples) goes to ``(r * w + c) * spp + s``
-    (pixel-major), or with ``slot_major`` to ``s * w * h + r * w + c``, so
-    that a range of slots is a contiguous run. ``ax, ay`` are absolute: the
-    pixel's float32 coordinates plus the offsets, exactly as the tester adds
-    them (the rows start at image row ``row0``). ``slot_lo[s], slot_hi[s]``: the smallest and largest t of slot s
+    index in the pixel's t-ordered samples) goes to ``base + (r * w + c) * spp
+    + s`` (pixel-major), and to ``n + base + s * w * h + r * w + c`` (n: the
+    number of samples; slot-major, so that a range of slots is a contiguous
+    run). ``ax, ay`` are absolute: the pixel's float32 coordinates plus the
+    offsets, exactly as the tester adds them (the rows start at image row
+    ``row0``). ``slot_lo[s], slot_hi[s]``: the smallest and largest t of slot s
     over all pixels (NaN ignored), so a tile's t^ selects a contiguous range
-    of slots that holds every sample with t in t^.
+    of slots that holds every sample with t in t^. ``stats``: the largest |x|
+    and the largest |y| (each NaN if one is NaN), the smallest and largest u
+    and v (NaN ignored; 0 included).
     """
+    n = x.shape[0]
     for s in range(spp):
         slot_lo[s] = np.inf
         slot_hi[s] = -np.inf
-    has_tup = tup.shape[0] == x.shape[0]
+    has_tup = tup.shape[0] == n
+    zero = np.float32(0.0)
+    mx = zero
+    my = zero
+    nan_x = False
+    nan_y = False
+    u_lo = zero
+    u_hi = zero
+    v_lo = zero
+    v_hi = zero
     for py in range(height):
         ty = py // tile_size
         r = py - ty * tile_size
         h = min(tile_size, height - ty * tile_size)
+        fy = np.float32(py + row0)
         for px in range(width):
             tx = px // tile_size
             cl = px - tx * tile_size
             w = min(tile_size, width - tx * tile_size)
             base = (ty * tile_size * width + tx * tile_size * h) * spp
-            if slot_major:
-                base += r * w + cl
-                step = w * h
-            else:
-                base += (r * w + cl) * spp
-                step = 1
+            kp = base + (r * w + cl) * spp
+            ks = n + base + r * w + cl
+            step = w * h
+            fx = np.float32(px)
             src = (py * width + px) * spp
             for s in range(spp):
-                k = base + s * step
-                ax[k] = np.float32(px) + x[src + s]
-                ay[k] = np.float32(py + row0) + y[src + s]
-                tu[k] = u[src + s]
-                tv[k] = v[src + s]
-                tk = t[src + s]
-                tt[k] = tk
+                j = src + s
+                xs = x[j]
+                ys = y[j]
+                us = u[j]
+                vs = v[j]
+                tk = t[j]
+                k = kp + s
+                q = ks + s * step
+                ax[k] = ax[q] = fx + xs
+                ay[k] = ay[q] = fy + ys
+                tu[k] = tu[q] = us
+                tv[k] = tv[q] = vs
+                tt[k] = tt[q] = tk
                 if has_tup:
-                    ttup[k] = tup[src + s]
-                if tk < slot_lo[s]:
-                    slot_lo[s] = tk
-                if tk > slot_hi[s]:
-                    slot_hi[s] = tk
+                    ttup[k] = ttup[q] = tup[j]
+                slot_lo[s] = tk if tk < slot_lo[s] else slot_lo[s]
+                slot_hi[s] = tk if tk > slot_hi[s] else slot_hi[s]
+                nan_x |= xs != xs
+                nan_y |= ys != ys
+                a = abs(xs)
+                mx = a if a > mx else mx
+                a = abs(ys)
+                my = a if a > my else my
+                u_lo = us if us < u_lo else u_lo
+                u_hi = us if us > u_hi else u_hi
+                v_lo = vs if vs < v_lo else v_lo
+                v_hi = vs if vs > v_hi else v_hi
+    stats[0] = np.nan if nan_x else mx
+    stats[1] = np.nan if nan_y else my
+    stats[2] = u_lo
+    stats[3] = u_hi
+    stats[4] = v_lo
+    stats[5] = v_hi
 
 
 @nb.njit(cache=True, error_model="numpy")
@@ -1032,6 +1065,9 @@ class SampleTester:
         self.backface_culling = backface_culling
         self.samples = None
         self._layout = None
+        self._buffers = None  # the tile-major float32 arrays (``layout``), sized for the largest region so far
+        self._tup_buffer = None
+        self._out = None  # the kernel's output buffers, sized for the largest batch so far (``run`` copies them)
         if samples is not None:
             self.use_samples(samples)
 
@@ -1046,29 +1082,31 @@ class SampleTester:
     def layout(self) -> tuple:
         """The samples in the kernel's two tile-major orders (``_tile_major``),
         pixel-major then slot-major in each array, built on first use:
-        (x, y, u, v, t, tuple index, slot_lo, slot_hi, uv_range, xy_max)."""
-        if getattr(self, "_layout", None) is None:
+        (x, y, u, v, t, tuple index, slot_lo, slot_hi, uv_range, xy_max).
+        The arrays are views of buffers a later region reuses."""
+        if self._layout is None:
             s = self.samples
             n = len(s.t)
             if s.width * s.height * s.spp != n:
                 raise ValueError("the sample tester needs the samples of whole rows")
             has_tup = s.tup is not None
+            if self._buffers is None or len(self._buffers[0]) < 2 * n:
+                self._buffers = tuple(np.empty(2 * n, np.float32) for _ in range(5))
+            if has_tup and (self._tup_buffer is None or len(self._tup_buffer) < 2 * n):
+                self._tup_buffer = np.empty(2 * n, np.int8)
+            tup = self._tup_buffer[:2 * n] if has_tup else np.zeros(1, np.int8)  # (the kernel reads index 0)
+            arrays = tuple(a[:2 * n] for a in self._buffers) + (tup,)
             lo = np.empty(s.spp, np.float32)
             hi = np.empty(s.spp, np.float32)
-            arrays = tuple(np.empty(2 * n, np.float32) for _ in range(5)) + (np.empty(2 * n if has_tup else 1,
-                                                                                     np.int8),)
-            for half, slot_major in ((slice(0, n), False), (slice(n, 2 * n), True)):
-                _tile_major(s.width, s.height, s.row0, s.spp, self.tile_size, slot_major, s.x, s.y, s.u, s.v, s.t,
-                            s.tup if has_tup else _NO_TUPLES, *(a[half] for a in arrays[:5]),
-                            arrays[5][half] if has_tup else arrays[5], lo, hi)
+            stats = np.empty(6, np.float64)
+            _tile_major(s.width, s.height, s.row0, s.spp, self.tile_size, s.x, s.y, s.u, s.v, s.t,
+                        s.tup if has_tup else _NO_TUPLES, *arrays, lo, hi, stats)
             if not (np.all(np.diff(lo) >= 0) and np.all(np.diff(hi) >= 0)):
                 lo[:] = -np.inf  # slots not in t order: every record takes them all
                 hi[:] = np.inf
-            m = max(float(np.abs(s.x).max(initial=0.0)), float(np.abs(s.y).max(initial=0.0)))
+            m = max(float(stats[0]), float(stats[1]))
             xy_max = m * (1.0 + 1e-6) if np.isfinite(m) else np.inf
-            uv = np.array([np.nanmin(s.u, initial=0.0), np.nanmax(s.u, initial=0.0), np.nanmin(s.v, initial=0.0),
-                           np.nanmax(s.v, initial=0.0)], np.float64) if n else np.zeros(4)
-            self._layout = arrays + (lo, hi, uv, xy_max)
+            self._layout = arrays + (lo, hi, stats[2:], xy_max)
         return self._layout
 
     def kernel_args(self, tiles: dict[str, np.ndarray], out: dict[str, np.ndarray], ops: np.ndarray,
@@ -1090,7 +1128,9 @@ class SampleTester:
         ts = self.tile_size
         n = len(tiles["tri"])
         cap = n * ts * ts * s.spp
-        out = SAMPLE.allocate(cap, fill=False)
+        if self._out is None or len(self._out["tri"]) < cap:
+            self._out = SAMPLE.allocate(cap, fill=False)
+        out = self._out
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
         m = sample_test_kernel(*self.kernel_args(tiles, out, ops, events))
