@@ -181,13 +181,15 @@ def _f32_at_most(a):
 
 
 # Pass-1 arithmetic of the inside test (``kind``): a static, pinhole
-# triangle's edge functions are set up once per triangle (its motion and lens
-# terms are +-0; dropping them changes at most the sign of a zero result,
-# never a non-zero value or a comparison); any other triangle's vertices are
-# computed at each sample's (t, u, v) with the full 5D formula that
-# ``_decide`` evaluates. (Separate xyt and xyuv formulas measured no faster:
-# the passes wait on memory more than on arithmetic.)
-K_2D, K_5D = 0, 3
+# triangle's edge functions are set up once per triangle, and a static,
+# defocused one's vertices are computed at each sample's (u, v) without the
+# time terms (its motion terms are +-0: dropping them changes at most the
+# sign of a zero result, never a non-zero value or a comparison, for finite
+# t; a non-finite t, which ``_decide`` rejects, may only be kept); any other
+# triangle's vertices are computed at each sample's (t, u, v) with the full
+# 5D formula that ``_decide`` evaluates. (A separate xyt formula would save
+# less: moving triangles keep most of the terms.)
+K_2D, K_XYUV, K_5D = 0, 2, 3
 
 
 @nb.njit(cache=True, inline="always")
@@ -205,15 +207,26 @@ def _keep(kind, t, u, v, x, y, c, n0, n1, n2):
         e1 = (c[33] * x + c[34] * y + c[35]) * sg
         e2 = (c[36] * x + c[37] * y + c[38]) * sg
     else:
-        X0 = _at(c[0], c[9], c[18], c[24], t, u)
-        X1 = _at(c[1], c[10], c[19], c[25], t, u)
-        X2 = _at(c[2], c[11], c[20], c[26], t, u)
-        Y0 = _at(c[3], c[12], c[21], c[27], t, v)
-        Y1 = _at(c[4], c[13], c[22], c[28], t, v)
-        Y2 = _at(c[5], c[14], c[23], c[29], t, v)
-        W0 = c[6] + t * c[15]
-        W1 = c[7] + t * c[16]
-        W2 = c[8] + t * c[17]
+        if kind == K_XYUV:
+            X0 = c[0] + u * c[18]
+            X1 = c[1] + u * c[19]
+            X2 = c[2] + u * c[20]
+            Y0 = c[3] + v * c[21]
+            Y1 = c[4] + v * c[22]
+            Y2 = c[5] + v * c[23]
+            W0 = c[6]
+            W1 = c[7]
+            W2 = c[8]
+        else:
+            X0 = _at(c[0], c[9], c[18], c[24], t, u)
+            X1 = _at(c[1], c[10], c[19], c[25], t, u)
+            X2 = _at(c[2], c[11], c[20], c[26], t, u)
+            Y0 = _at(c[3], c[12], c[21], c[27], t, v)
+            Y1 = _at(c[4], c[13], c[22], c[28], t, v)
+            Y2 = _at(c[5], c[14], c[23], c[29], t, v)
+            W0 = c[6] + t * c[15]
+            W1 = c[7] + t * c[16]
+            W2 = c[8] + t * c[17]
         a0, b0, c0, a1, b1, c1, a2, b2, c2, D = _edges(X0, Y0, W0, X1, Y1, W1, X2, Y2, W2)
         sg = one if D > 0 else -one
         e0 = (a0 * x + b0 * y + c0) * sg
@@ -454,6 +467,8 @@ _LUT_POP = np.array([bin(p).count("1") for p in range(256)], np.int32)
 def _pass1_fused(kind, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2):
     if kind == K_2D:
         return _mark_range_fused(K_2D, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2)
+    if kind == K_XYUV:
+        return _mark_range_fused(K_XYUV, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2)
     return _mark_range_fused(K_5D, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2)
 
 
@@ -461,6 +476,8 @@ def _pass1_fused(kind, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, 
 def _pass1_packed(kind, n, ct, cu, cv, cx, cy, cand, c, n0, n1, n2):
     if kind == K_2D:
         return _mark_packed(K_2D, n, ct, cu, cv, cx, cy, cand, c, n0, n1, n2)
+    if kind == K_XYUV:
+        return _mark_packed(K_XYUV, n, ct, cu, cv, cx, cy, cand, c, n0, n1, n2)
     return _mark_packed(K_5D, n, ct, cu, cv, cx, cy, cand, c, n0, n1, n2)
 
 
@@ -852,7 +869,7 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
                 lens = lens or tc[k_] != 0
             # the dimensions this triangle uses: 0 = 2D, 1 = xyt, 2 = xyuv, 3 = xyuvt
             dims = (1 if moving else 0) + (2 if lens else 0)
-            kind = K_2D if dims == 0 and specialize else K_5D
+            kind = dims if specialize and (dims == K_2D or dims == K_XYUV) else K_5D
             # 2D path: vertices and edges once per tile (t, u, v do not matter)
             sa0, sb0, sc0, sa1, sb1, sc1, sa2, sb2, sc2, sD = _edges(tc[0], tc[3], tc[6], tc[1], tc[4], tc[7],
                                                                      tc[2], tc[5], tc[8])
@@ -1142,7 +1159,7 @@ class SampleTester:
         ops[OP_RCP] += m * COVER_OPS_RCP
         ops[OP_MUL] += m * COVER_OPS_MUL
         ops[OP_MADD] += m * COVER_OPS_MADD
-        res = {k: v[:m].copy() for k, v in out.items()}
-        if s.row0:  # the kernel numbers pixels from the region's first row
-            res["pix"] += np.int32(s.row0 * s.width)
+        # (the kernel numbers pixels from the region's first row)
+        first = np.int32(s.row0 * s.width)
+        res = {k: v[:m] + first if k == "pix" else v[:m].copy() for k, v in out.items()}
         return res, ops, events
