@@ -238,9 +238,10 @@ def _keep(kind, t, u, v, x, y, c, n0, n1, n2):
 @nb.njit(cache=True, inline="always")
 def _mark_range_fused(kind, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2):
     """The interval test and pass 1 in one pass over the contiguous samples
-    ``k0 + i``, i < n (for runs expected to lie mostly in the intervals):
-    candidates (``cand[i]``) are the samples in the intervals that ``_keep``
-    keeps. Branch-free, unsigned indices (no negative-index checks) and int32
+    ``k0 + i``, i < n (runs expected to lie mostly in the intervals, or
+    samples packed beforehand, with unbounded intervals): candidates
+    (``cand[i]``) are the samples in the intervals that ``_keep`` keeps.
+    Branch-free, unsigned indices (no negative-index checks) and int32
     counts (an int64 one halves the vector width): numba vectorizes it.
     Returns (in t^, in all intervals, candidates)."""
     n_t = np.int32(0)
@@ -259,17 +260,6 @@ def _mark_range_fused(kind, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va,
         n_a = np.int32(n_a + np.int32(in_a))
         nc = np.int32(nc + np.int32(keep))
     return n_t, n_a, nc
-
-
-@nb.njit(cache=True, inline="always")
-def _mark_packed(kind, n, ct, cu, cv, cx, cy, cand, c, n0, n1, n2):
-    """Pass 1 over samples packed beforehand: all lie in the intervals."""
-    nc = np.int32(0)
-    for j in range(n):
-        k = _keep(kind, ct[j], cu[j], cv[j], cx[j], cy[j], c, n0, n1, n2)
-        cand[j] = k
-        nc = np.int32(nc + np.int32(k))
-    return nc
 
 
 @nb.njit(cache=True, inline="always")
@@ -470,15 +460,6 @@ def _pass1_fused(kind, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, 
     if kind == K_XYUV:
         return _mark_range_fused(K_XYUV, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2)
     return _mark_range_fused(K_5D, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2)
-
-
-@nb.njit(cache=True)
-def _pass1_packed(kind, n, ct, cu, cv, cx, cy, cand, c, n0, n1, n2):
-    if kind == K_2D:
-        return _mark_packed(K_2D, n, ct, cu, cv, cx, cy, cand, c, n0, n1, n2)
-    if kind == K_XYUV:
-        return _mark_packed(K_XYUV, n, ct, cu, cv, cx, cy, cand, c, n0, n1, n2)
-    return _mark_packed(K_5D, n, ct, cu, cv, cx, cy, cand, c, n0, n1, n2)
 
 
 @nb.njit(cache=True, error_model="numpy")
@@ -756,6 +737,7 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
     searches = 0
     one = np.float32(1.0)
     nan = np.float32(np.nan)
+    inf = np.float32(np.inf)
     zero = np.float32(0.0)
     tile_len = tile_size * tile_size * spp
     pad = 32  # packed arrays end on whole vector-loop iterations
@@ -1001,7 +983,9 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
                 cv[q] = zero
                 cx[q] = nan
                 cy[q] = nan
-            nc = _pass1_packed(kind, m_pad, ct, cu, cv, cx, cy, cc, c, n0, n1, n2)
+            # (the fused pass with unbounded intervals: the packed samples lie in them)
+            _, _, nc = _pass1_fused(kind, m_pad, none, ct, cu, cv, cx, cy, cc, -inf, inf, -inf, inf, -inf, inf, c,
+                                    n0, n1, n2)
             if nc == 0:
                 continue
             m = _positions(ccw, m_pad // 8, pos)
