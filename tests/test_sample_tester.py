@@ -338,18 +338,25 @@ def _edges_np(X, Y, W, x, y):
     return out
 
 
-@pytest.mark.parametrize("motion", [False, True])
-def test_fast_paths_match_plain_loop_on_samples_on_shared_edges(motion):
+@pytest.mark.parametrize("motion, lens", [(False, False), (True, False), (False, True), (True, True)])
+def test_fast_paths_match_plain_loop_on_samples_on_shared_edges(motion, lens):
     """A fan of triangles over a grid of pixel centres, sampled at pixel
     centres and corners: many samples lie exactly on edges and vertices,
     where only ``_decide``'s float64 re-test can tell (so pass 1 must never
-    drop them)."""
+    drop them). With ``lens``, static triangles take pass 1's xyuv formula
+    and moving ones the 5D one: the samples at u = v = 0 sit on the edges,
+    those at u = v = +-0.5 a whole pixel off, and t runs to both ends of
+    the shutter."""
     from pipeline_sim.sampling import make_samples
     from units.sample_tester import SampleTester
 
     width, height = 20, 14
     table = np.array([[0.5, 0.5, 0, 0, 0.5], [0.0, 0.0, 0, 0, 0.25], [0.5, 0.0, 0, 0, 0.5], [0.0, 0.5, 0, 0, 0.75]])
-    samples = make_samples(width, height, 4, 0, lens=False, motion=motion, pattern="table", table=table)
+    if lens:
+        table = np.array([[0.5, 0.5, 0, 0, 0.0], [0.0, 0.0, 0.5, 0.5, 0.0], [0.5, 0.0, -0.5, 0, 0.25],
+                          [0.0, 0.5, 0, 0, 0.5], [0.5, 0.5, 0.5, -0.5, 0.5], [0.0, 0.0, 0, 0.5, 0.75],
+                          [0.5, 0.0, 0, 0, 1.0], [0.0, 0.5, -0.5, -0.5, 1.0]])
+    samples = make_samples(width, height, len(table), 0, lens=lens, motion=motion, pattern="table", table=table)
     pts = [(x + 0.5, y + 0.5) for y in range(1, height, 4) for x in range(1, width, 5)]
     cols = len(range(1, width, 5))
     tris = []
@@ -367,8 +374,71 @@ def test_fast_paths_match_plain_loop_on_samples_on_shared_edges(motion):
     r = q.copy()
     if motion:  # a whole-pixel shift over the shutter: at t = 0.5 the edges sit on half pixels
         r[:, :, 0] += 2 * 2.0 / width * r[:, :, 3]
-    zero = np.zeros((n, 3, 2))
-    setup, _, tiles = setup_and_tiles(q, r, zero, zero, width, height, tile_size=4)
+    lx = np.zeros((n, 3, 2))
+    ly = np.zeros((n, 3, 2))
+    if lens:  # at u = +-0.5 a whole pixel (lens offsets scale with w, as positions do)
+        lx[:] = 2 * 2.0 / width * q[:, :, 3:4]
+        ly[:] = -2 * 2.0 / height * q[:, :, 3:4]
+    setup, _, tiles = setup_and_tiles(q, r, lx, ly, width, height, tile_size=4)
     tester = SampleTester(None, setup.table, samples, 4, False)
     _, ev = assert_tester_matches_reference(tester, tiles)
     assert ev["samples_covered"] > 300
+    if lens:
+        assert ev["tests_5d" if motion else "tests_4d_xyuv"] == ev["samples_tested"]
+
+
+def test_layout_orders_and_ranges_match_numpy():
+    """``SampleTester.layout`` against numpy: both tile-major orders, each
+    slot's t range and the samples' x, y, u, v ranges, for a region whose
+    tiles are cut at the right and bottom; then a smaller region laid out in
+    the buffers the first one left."""
+    from pipeline_sim.sampling import make_samples
+    from units.sample_tester import SampleTester
+
+    width, spp, ts = 21, 8, 4
+    tester = SampleTester(None, None, None, ts, False)
+    for rows in ((4, 15), (8, 14)):
+        s = make_samples(width, 18, spp, 2, lens=True, motion=True, rows=rows)
+        tester.use_samples(s)
+        ax, ay, au, av, at, _, lo, hi, uv, xy_max = tester.layout()
+        n = len(s.t)
+        assert len(at) == 2 * n
+        t = s.t.reshape(s.height, width, spp)
+        np.testing.assert_array_equal(lo, t.min(axis=(0, 1)))
+        np.testing.assert_array_equal(hi, t.max(axis=(0, 1)))
+        np.testing.assert_array_equal(uv, [min(s.u.min(), 0), max(s.u.max(), 0), min(s.v.min(), 0),
+                                           max(s.v.max(), 0)])
+        assert xy_max == float(max(np.abs(s.x).max(), np.abs(s.y).max())) * (1 + 1e-6)
+        px = np.arange(width, dtype=np.float32)[None, :, None]
+        py = np.arange(s.row0, s.row0 + s.height, dtype=np.float32)[:, None, None]
+        fields = (s.x.reshape(t.shape) + px, s.y.reshape(t.shape) + py, s.u.reshape(t.shape),
+                  s.v.reshape(t.shape), t)
+        k = 0
+        for y0 in range(0, s.height, ts):
+            for x0 in range(0, width, ts):
+                for got, want in zip((ax, ay, au, av, at), fields):
+                    block = want[y0:y0 + ts, x0:x0 + ts]  # (h, w, spp)
+                    m = block.size
+                    assert got[k:k + m].tobytes() == block.tobytes()  # pixel by pixel
+                    assert got[n + k:n + k + m].tobytes() == block.transpose(2, 0, 1).tobytes()  # slot by slot
+                k += m
+        assert k == n
+
+
+def test_layout_keeps_nan_rules():
+    """NaN samples: the t and u, v ranges ignore them; a NaN x makes
+    ``xy_max`` infinite (every tolerance then falls back to the edge's eps)."""
+    import dataclasses
+
+    from pipeline_sim.sampling import make_samples
+    from units.sample_tester import SampleTester
+
+    s = make_samples(8, 8, 4, 1, lens=True, motion=True)
+    clean = SampleTester(None, None, s, 4, False).layout()
+    t, u, x = s.t.copy(), s.u.copy(), s.x.copy()
+    t[5] = u[7] = np.nan
+    lay = SampleTester(None, None, dataclasses.replace(s, t=t, u=u), 4, False).layout()
+    for a, b in zip(clean[6:9], lay[6:9]):
+        np.testing.assert_array_equal(a, b)
+    x[3] = np.nan
+    assert SampleTester(None, None, dataclasses.replace(s, x=x), 4, False).layout()[9] == np.inf

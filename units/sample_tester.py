@@ -181,13 +181,15 @@ def _f32_at_most(a):
 
 
 # Pass-1 arithmetic of the inside test (``kind``): a static, pinhole
-# triangle's edge functions are set up once per triangle (its motion and lens
-# terms are +-0; dropping them changes at most the sign of a zero result,
-# never a non-zero value or a comparison); any other triangle's vertices are
-# computed at each sample's (t, u, v) with the full 5D formula that
-# ``_decide`` evaluates. (Separate xyt and xyuv formulas measured no faster:
-# the passes wait on memory more than on arithmetic.)
-K_2D, K_5D = 0, 3
+# triangle's edge functions are set up once per triangle, and a static,
+# defocused one's vertices are computed at each sample's (u, v) without the
+# time terms (its motion terms are +-0: dropping them changes at most the
+# sign of a zero result, never a non-zero value or a comparison, for finite
+# t; a non-finite t, which ``_decide`` rejects, may only be kept); any other
+# triangle's vertices are computed at each sample's (t, u, v) with the full
+# 5D formula that ``_decide`` evaluates. (A separate xyt formula would save
+# less: moving triangles keep most of the terms.)
+K_2D, K_XYUV, K_5D = 0, 2, 3
 
 
 @nb.njit(cache=True, inline="always")
@@ -205,15 +207,26 @@ def _keep(kind, t, u, v, x, y, c, n0, n1, n2):
         e1 = (c[33] * x + c[34] * y + c[35]) * sg
         e2 = (c[36] * x + c[37] * y + c[38]) * sg
     else:
-        X0 = _at(c[0], c[9], c[18], c[24], t, u)
-        X1 = _at(c[1], c[10], c[19], c[25], t, u)
-        X2 = _at(c[2], c[11], c[20], c[26], t, u)
-        Y0 = _at(c[3], c[12], c[21], c[27], t, v)
-        Y1 = _at(c[4], c[13], c[22], c[28], t, v)
-        Y2 = _at(c[5], c[14], c[23], c[29], t, v)
-        W0 = c[6] + t * c[15]
-        W1 = c[7] + t * c[16]
-        W2 = c[8] + t * c[17]
+        if kind == K_XYUV:
+            X0 = c[0] + u * c[18]
+            X1 = c[1] + u * c[19]
+            X2 = c[2] + u * c[20]
+            Y0 = c[3] + v * c[21]
+            Y1 = c[4] + v * c[22]
+            Y2 = c[5] + v * c[23]
+            W0 = c[6]
+            W1 = c[7]
+            W2 = c[8]
+        else:
+            X0 = _at(c[0], c[9], c[18], c[24], t, u)
+            X1 = _at(c[1], c[10], c[19], c[25], t, u)
+            X2 = _at(c[2], c[11], c[20], c[26], t, u)
+            Y0 = _at(c[3], c[12], c[21], c[27], t, v)
+            Y1 = _at(c[4], c[13], c[22], c[28], t, v)
+            Y2 = _at(c[5], c[14], c[23], c[29], t, v)
+            W0 = c[6] + t * c[15]
+            W1 = c[7] + t * c[16]
+            W2 = c[8] + t * c[17]
         a0, b0, c0, a1, b1, c1, a2, b2, c2, D = _edges(X0, Y0, W0, X1, Y1, W1, X2, Y2, W2)
         sg = one if D > 0 else -one
         e0 = (a0 * x + b0 * y + c0) * sg
@@ -225,9 +238,10 @@ def _keep(kind, t, u, v, x, y, c, n0, n1, n2):
 @nb.njit(cache=True, inline="always")
 def _mark_range_fused(kind, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2):
     """The interval test and pass 1 in one pass over the contiguous samples
-    ``k0 + i``, i < n (for runs expected to lie mostly in the intervals):
-    candidates (``cand[i]``) are the samples in the intervals that ``_keep``
-    keeps. Branch-free, unsigned indices (no negative-index checks) and int32
+    ``k0 + i``, i < n (runs expected to lie mostly in the intervals, or
+    samples packed beforehand, with unbounded intervals): candidates
+    (``cand[i]``) are the samples in the intervals that ``_keep`` keeps.
+    Branch-free, unsigned indices (no negative-index checks) and int32
     counts (an int64 one halves the vector width): numba vectorizes it.
     Returns (in t^, in all intervals, candidates)."""
     n_t = np.int32(0)
@@ -246,17 +260,6 @@ def _mark_range_fused(kind, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va,
         n_a = np.int32(n_a + np.int32(in_a))
         nc = np.int32(nc + np.int32(keep))
     return n_t, n_a, nc
-
-
-@nb.njit(cache=True, inline="always")
-def _mark_packed(kind, n, ct, cu, cv, cx, cy, cand, c, n0, n1, n2):
-    """Pass 1 over samples packed beforehand: all lie in the intervals."""
-    nc = np.int32(0)
-    for j in range(n):
-        k = _keep(kind, ct[j], cu[j], cv[j], cx[j], cy[j], c, n0, n1, n2)
-        cand[j] = k
-        nc = np.int32(nc + np.int32(k))
-    return nc
 
 
 @nb.njit(cache=True, inline="always")
@@ -454,14 +457,9 @@ _LUT_POP = np.array([bin(p).count("1") for p in range(256)], np.int32)
 def _pass1_fused(kind, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2):
     if kind == K_2D:
         return _mark_range_fused(K_2D, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2)
+    if kind == K_XYUV:
+        return _mark_range_fused(K_XYUV, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2)
     return _mark_range_fused(K_5D, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2)
-
-
-@nb.njit(cache=True)
-def _pass1_packed(kind, n, ct, cu, cv, cx, cy, cand, c, n0, n1, n2):
-    if kind == K_2D:
-        return _mark_packed(K_2D, n, ct, cu, cv, cx, cy, cand, c, n0, n1, n2)
-    return _mark_packed(K_5D, n, ct, cu, cv, cx, cy, cand, c, n0, n1, n2)
 
 
 @nb.njit(cache=True, error_model="numpy")
@@ -602,55 +600,88 @@ def _positions(words, n_words, out):
 
 
 @nb.njit(cache=True)
-def _tile_major(width, height, row0, spp, tile_size, slot_major, x, y, u, v, t, tup, ax, ay, tu, tv, tt, ttup,
-                slot_lo, slot_hi):
-    """The samples in one of the sample tester's tile-major orders.
+def _tile_major(width, height, row0, spp, tile_size, x, y, u, v, t, tup, ax, ay, tu, tv, tt, ttup, slot_lo, slot_hi,
+                stats):
+    """The samples in the sample tester's two tile-major orders, one after the
+    other in each output array, in one pass over them.
 
     Every tile's samples become contiguous, from ``base = (ty * tile_size *
     width + tx * tile_size * h) * spp`` (w x h: the tile's size, smaller at
     the right and bottom edges). Within the tile, pixel (r, c) sample s (its
-    index in the pixel's t-ordered samples) goes to ``(r * w + c) * spp + s``
-    (pixel-major), or with ``slot_major`` to ``s * w * h + r * w + c``, so
-    that a range of slots is a contiguous run. ``ax, ay`` are absolute: the
-    pixel's float32 coordinates plus the offsets, exactly as the tester adds
-    them (the rows start at image row ``row0``). ``slot_lo[s], slot_hi[s]``: the smallest and largest t of slot s
+    index in the pixel's t-ordered samples) goes to ``base + (r * w + c) * spp
+    + s`` (pixel-major), and to ``n + base + s * w * h + r * w + c`` (n: the
+    number of samples; slot-major, so that a range of slots is a contiguous
+    run). ``ax, ay`` are absolute: the pixel's float32 coordinates plus the
+    offsets, exactly as the tester adds them (the rows start at image row
+    ``row0``). ``slot_lo[s], slot_hi[s]``: the smallest and largest t of slot s
     over all pixels (NaN ignored), so a tile's t^ selects a contiguous range
-    of slots that holds every sample with t in t^.
+    of slots that holds every sample with t in t^. ``stats``: the largest |x|
+    and the largest |y| (each NaN if one is NaN), the smallest and largest u
+    and v (NaN ignored; 0 included).
     """
+    n = x.shape[0]
     for s in range(spp):
         slot_lo[s] = np.inf
         slot_hi[s] = -np.inf
-    has_tup = tup.shape[0] == x.shape[0]
+    has_tup = tup.shape[0] == n
+    zero = np.float32(0.0)
+    mx = zero
+    my = zero
+    nan_x = False
+    nan_y = False
+    u_lo = zero
+    u_hi = zero
+    v_lo = zero
+    v_hi = zero
     for py in range(height):
         ty = py // tile_size
         r = py - ty * tile_size
         h = min(tile_size, height - ty * tile_size)
+        fy = np.float32(py + row0)
         for px in range(width):
             tx = px // tile_size
             cl = px - tx * tile_size
             w = min(tile_size, width - tx * tile_size)
             base = (ty * tile_size * width + tx * tile_size * h) * spp
-            if slot_major:
-                base += r * w + cl
-                step = w * h
-            else:
-                base += (r * w + cl) * spp
-                step = 1
+            kp = base + (r * w + cl) * spp
+            ks = n + base + r * w + cl
+            step = w * h
+            fx = np.float32(px)
             src = (py * width + px) * spp
             for s in range(spp):
-                k = base + s * step
-                ax[k] = np.float32(px) + x[src + s]
-                ay[k] = np.float32(py + row0) + y[src + s]
-                tu[k] = u[src + s]
-                tv[k] = v[src + s]
-                tk = t[src + s]
-                tt[k] = tk
+                j = src + s
+                xs = x[j]
+                ys = y[j]
+                us = u[j]
+                vs = v[j]
+                tk = t[j]
+                k = kp + s
+                q = ks + s * step
+                ax[k] = ax[q] = fx + xs
+                ay[k] = ay[q] = fy + ys
+                tu[k] = tu[q] = us
+                tv[k] = tv[q] = vs
+                tt[k] = tt[q] = tk
                 if has_tup:
-                    ttup[k] = tup[src + s]
-                if tk < slot_lo[s]:
-                    slot_lo[s] = tk
-                if tk > slot_hi[s]:
-                    slot_hi[s] = tk
+                    ttup[k] = ttup[q] = tup[j]
+                slot_lo[s] = tk if tk < slot_lo[s] else slot_lo[s]
+                slot_hi[s] = tk if tk > slot_hi[s] else slot_hi[s]
+                nan_x |= xs != xs
+                nan_y |= ys != ys
+                a = abs(xs)
+                mx = a if a > mx else mx
+                a = abs(ys)
+                my = a if a > my else my
+                u_lo = us if us < u_lo else u_lo
+                u_hi = us if us > u_hi else u_hi
+                v_lo = vs if vs < v_lo else v_lo
+                v_hi = vs if vs > v_hi else v_hi
+    stats[0] = np.nan if nan_x else mx
+    stats[1] = np.nan if nan_y else my
+    stats[2] = u_lo
+    stats[3] = u_hi
+    stats[4] = v_lo
+    stats[5] = v_hi
 
 
 @nb.njit(cache=True, error_model="numpy")
@@ -706,6 +737,7 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
     searches = 0
     one = np.float32(1.0)
     nan = np.float32(np.nan)
+    inf = np.float32(np.inf)
     zero = np.float32(0.0)
     tile_len = tile_size * tile_size * spp
     pad = 32  # packed arrays end on whole vector-loop iterations
@@ -819,7 +851,7 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
                 lens = lens or tc[k_] != 0
             # the dimensions this triangle uses: 0 = 2D, 1 = xyt, 2 = xyuv, 3 = xyuvt
             dims = (1 if moving else 0) + (2 if lens else 0)
-            kind = K_2D if dims == 0 and specialize else K_5D
+            kind = dims if specialize and (dims == K_2D or dims == K_XYUV) else K_5D
             # 2D path: vertices and edges once per tile (t, u, v do not matter)
             sa0, sb0, sc0, sa1, sb1, sc1, sa2, sb2, sc2, sD = _edges(tc[0], tc[3], tc[6], tc[1], tc[4], tc[7],
                                                                      tc[2], tc[5], tc[8])
@@ -951,7 +983,9 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
                 cv[q] = zero
                 cx[q] = nan
                 cy[q] = nan
-            nc = _pass1_packed(kind, m_pad, ct, cu, cv, cx, cy, cc, c, n0, n1, n2)
+            # (the fused pass with unbounded intervals: the packed samples lie in them)
+            _, _, nc = _pass1_fused(kind, m_pad, none, ct, cu, cv, cx, cy, cc, -inf, inf, -inf, inf, -inf, inf, c,
+                                    n0, n1, n2)
             if nc == 0:
                 continue
             m = _positions(ccw, m_pad // 8, pos)
@@ -1032,6 +1066,9 @@ class SampleTester:
         self.backface_culling = backface_culling
         self.samples = None
         self._layout = None
+        self._buffers = None  # the tile-major float32 arrays (``layout``), sized for the largest region so far
+        self._tup_buffer = None
+        self._out = None  # the kernel's output buffers, sized for the largest batch so far (``run`` copies them)
         if samples is not None:
             self.use_samples(samples)
 
@@ -1046,29 +1083,31 @@ class SampleTester:
     def layout(self) -> tuple:
         """The samples in the kernel's two tile-major orders (``_tile_major``),
         pixel-major then slot-major in each array, built on first use:
-        (x, y, u, v, t, tuple index, slot_lo, slot_hi, uv_range, xy_max)."""
-        if getattr(self, "_layout", None) is None:
+        (x, y, u, v, t, tuple index, slot_lo, slot_hi, uv_range, xy_max).
+        The arrays are views of buffers a later region reuses."""
+        if self._layout is None:
             s = self.samples
             n = len(s.t)
             if s.width * s.height * s.spp != n:
                 raise ValueError("the sample tester needs the samples of whole rows")
             has_tup = s.tup is not None
+            if self._buffers is None or len(self._buffers[0]) < 2 * n:
+                self._buffers = tuple(np.empty(2 * n, np.float32) for _ in range(5))
+            if has_tup and (self._tup_buffer is None or len(self._tup_buffer) < 2 * n):
+                self._tup_buffer = np.empty(2 * n, np.int8)
+            tup = self._tup_buffer[:2 * n] if has_tup else np.zeros(1, np.int8)  # (the kernel reads index 0)
+            arrays = tuple(a[:2 * n] for a in self._buffers) + (tup,)
             lo = np.empty(s.spp, np.float32)
             hi = np.empty(s.spp, np.float32)
-            arrays = tuple(np.empty(2 * n, np.float32) for _ in range(5)) + (np.empty(2 * n if has_tup else 1,
-                                                                                     np.int8),)
-            for half, slot_major in ((slice(0, n), False), (slice(n, 2 * n), True)):
-                _tile_major(s.width, s.height, s.row0, s.spp, self.tile_size, slot_major, s.x, s.y, s.u, s.v, s.t,
-                            s.tup if has_tup else _NO_TUPLES, *(a[half] for a in arrays[:5]),
-                            arrays[5][half] if has_tup else arrays[5], lo, hi)
+            stats = np.empty(6, np.float64)
+            _tile_major(s.width, s.height, s.row0, s.spp, self.tile_size, s.x, s.y, s.u, s.v, s.t,
+                        s.tup if has_tup else _NO_TUPLES, *arrays, lo, hi, stats)
             if not (np.all(np.diff(lo) >= 0) and np.all(np.diff(hi) >= 0)):
                 lo[:] = -np.inf  # slots not in t order: every record takes them all
                 hi[:] = np.inf
-            m = max(float(np.abs(s.x).max(initial=0.0)), float(np.abs(s.y).max(initial=0.0)))
+            m = max(float(stats[0]), float(stats[1]))
             xy_max = m * (1.0 + 1e-6) if np.isfinite(m) else np.inf
-            uv = np.array([np.nanmin(s.u, initial=0.0), np.nanmax(s.u, initial=0.0), np.nanmin(s.v, initial=0.0),
-                           np.nanmax(s.v, initial=0.0)], np.float64) if n else np.zeros(4)
-            self._layout = arrays + (lo, hi, uv, xy_max)
+            self._layout = arrays + (lo, hi, stats[2:], xy_max)
         return self._layout
 
     def kernel_args(self, tiles: dict[str, np.ndarray], out: dict[str, np.ndarray], ops: np.ndarray,
@@ -1090,7 +1129,9 @@ class SampleTester:
         ts = self.tile_size
         n = len(tiles["tri"])
         cap = n * ts * ts * s.spp
-        out = SAMPLE.allocate(cap, fill=False)
+        if self._out is None or len(self._out["tri"]) < cap:
+            self._out = SAMPLE.allocate(cap, fill=False)
+        out = self._out
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
         m = sample_test_kernel(*self.kernel_args(tiles, out, ops, events))
@@ -1102,7 +1143,7 @@ class SampleTester:
         ops[OP_RCP] += m * COVER_OPS_RCP
         ops[OP_MUL] += m * COVER_OPS_MUL
         ops[OP_MADD] += m * COVER_OPS_MADD
-        res = {k: v[:m].copy() for k, v in out.items()}
-        if s.row0:  # the kernel numbers pixels from the region's first row
-            res["pix"] += np.int32(s.row0 * s.width)
+        # (the kernel numbers pixels from the region's first row)
+        first = np.int32(s.row0 * s.width)
+        res = {k: v[:m] + first if k == "pix" else v[:m].copy() for k, v in out.items()}
         return res, ops, events
