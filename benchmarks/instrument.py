@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import threading
 import time
 from collections import defaultdict, deque
 
@@ -157,8 +158,10 @@ class Timers:
     """Accumulated wall (perf_counter) and CPU seconds of the calling thread (thread_time) and calls per key;
     ``self_seconds`` and ``self_cpu`` leave out the timed calls made inside (a screen region's samples
     waited for or resolved within a stage's step), except those of :data:`TRANSPARENT` keys, which their
-    caller's time keeps. Every timed call is made on the main thread; the CPU of other threads (sample
-    generation's) is what the process used beyond the main thread."""
+    caller's time keeps. Timed calls nest on the main thread; a :data:`TRANSPARENT` key's calls may also
+    run on a helper thread (the tester's kernel on the first half of a split batch): its seconds and CPU
+    are summed over the threads. The CPU of the other threads (sample generation's, that helper's) is
+    what the process used beyond the main thread."""
 
     def __init__(self):
         self.seconds: dict[str, float] = defaultdict(float)
@@ -168,6 +171,7 @@ class Timers:
         self.self_cpu: dict[str, float] = defaultdict(float)
         self.stack: list[list[float]] = []  # per open timed call: its timed children's wall and CPU
         self.other_threads_cpu = 0.0  # CPU the process used beyond the main thread (set by the caller)
+        self.lock = threading.Lock()  # for the calls of TRANSPARENT keys, from any thread
 
 
 #: Keys timed inside a unit's run whose time stays that unit's (the tester's kernel).
@@ -175,6 +179,19 @@ TRANSPARENT = ("sample_test_kernel",)
 
 
 def _timed(fn, timers: Timers, key: str):
+    if key in TRANSPARENT:
+        def summed(*a, **k):
+            t0, c0 = time.perf_counter(), time.thread_time()
+            try:
+                return fn(*a, **k)
+            finally:
+                wall, cpu = time.perf_counter() - t0, time.thread_time() - c0
+                with timers.lock:
+                    timers.seconds[key] += wall
+                    timers.cpu[key] += cpu
+                    timers.calls[key] += 1
+        return summed
+
     def wrapper(*a, **k):
         children = [0.0, 0.0]
         timers.stack.append(children)
@@ -188,12 +205,11 @@ def _timed(fn, timers: Timers, key: str):
             timers.cpu[key] += cpu
             timers.seconds[key] += wall
             timers.calls[key] += 1
-            if key not in TRANSPARENT:
-                timers.self_seconds[key] += wall - children[0]
-                timers.self_cpu[key] += cpu - children[1]
-                if timers.stack:
-                    timers.stack[-1][0] += wall
-                    timers.stack[-1][1] += cpu
+            timers.self_seconds[key] += wall - children[0]
+            timers.self_cpu[key] += cpu - children[1]
+            if timers.stack:
+                timers.stack[-1][0] += wall
+                timers.stack[-1][1] += cpu
     return wrapper
 
 

@@ -624,7 +624,7 @@ def report(results: dict) -> tuple[str, list[dict]]:
         out.append(table(rows, ("rate", "tests/s", "CPU", "note")))
         add("sample_tests", "pipeline_sample_tester_rate", d["tester_rate"], "tests/s", "samples_tested / SampleTester.run wall time")
         add("sample_tests", "pipeline_sample_tester_rate_cpu", d["tester_rate_cpu"], "tests/s", "samples_tested / SampleTester.run CPU time")
-        add("sample_tests", "pipeline_kernel_rate", d["tester_kernel_rate"], "tests/s", "samples_tested / kernel call wall time")
+        add("sample_tests", "pipeline_kernel_rate", d["tester_kernel_rate"], "tests/s", "samples_tested / kernel call wall time, summed over the threads of split batches")
         add("sample_tests", "micro_kernel_rate", d["micro_rate"], "tests/s", "bare float32 SoA 5D kernel, one core")
         add("sample_tests", "micro_kernel_rate_cpu", d["micro_rate_cpu"], "tests/s", "CPU time")
         add("sample_tests", "micro_over_pipeline", d["micro_over_pipeline"], "ratio", "wall-time rates")
