@@ -160,8 +160,8 @@ class Timers:
     waited for or resolved within a stage's step), except those of :data:`TRANSPARENT` keys, which their
     caller's time keeps. Timed calls nest on the main thread; a :data:`TRANSPARENT` key's calls may also
     run on a helper thread (the tester's kernel on the first half of a split batch): its seconds and CPU
-    are summed over the threads. The CPU of the other threads (sample generation's, that helper's) is
-    what the process used beyond the main thread."""
+    are summed over the threads, and ``helper_cpu`` is the helper's share. The CPU of sample generation's
+    threads is what the process used beyond the main thread and that helper."""
 
     def __init__(self):
         self.seconds: dict[str, float] = defaultdict(float)
@@ -172,6 +172,7 @@ class Timers:
         self.stack: list[list[float]] = []  # per open timed call: its timed children's wall and CPU
         self.other_threads_cpu = 0.0  # CPU the process used beyond the main thread (set by the caller)
         self.lock = threading.Lock()  # for the calls of TRANSPARENT keys, from any thread
+        self.helper_cpu = 0.0  # CPU of TRANSPARENT calls made on other threads (the tester's helper)
 
 
 #: Keys timed inside a unit's run whose time stays that unit's (the tester's kernel).
@@ -190,6 +191,8 @@ def _timed(fn, timers: Timers, key: str):
                     timers.seconds[key] += wall
                     timers.cpu[key] += cpu
                     timers.calls[key] += 1
+                    if threading.current_thread() is not threading.main_thread():
+                        timers.helper_cpu += cpu
         return summed
 
     def wrapper(*a, **k):
@@ -229,7 +232,8 @@ def unit_timers(timers: Timers):
         stack.enter_context(patched(RegionSamples, "region", _timed(RegionSamples.region, timers, "samples wait")))
 
         def make_samples(*a, _make=render.make_samples, **k):
-            timers.calls["make_samples"] += 1
+            with timers.lock:
+                timers.calls["make_samples"] += 1
             return _make(*a, **k)
         stack.enter_context(patched(render, "make_samples", make_samples))
 

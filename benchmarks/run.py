@@ -371,7 +371,7 @@ def bench_default(cfg: dict) -> dict:
 
     out["tester_run_s"] = med("sample_tester")
     out["tester_kernel_s"] = med("sample_test_kernel")
-    out["tester_run_cpu_s"] = med("sample_tester", True)
+    out["tester_run_cpu_s"] = float(np.median([tm.cpu["sample_tester"] + tm.helper_cpu for _, _, tm in runs]))
     out["tester_rate"] = st_tested / out["tester_run_s"]
     out["tester_kernel_rate"] = st_tested / out["tester_kernel_s"]
     out["tester_rate_cpu"] = st_tested / out["tester_run_cpu_s"]
@@ -411,13 +411,16 @@ def unit_breakdown(runs: list, simpy_s: float, simpy_cpu_s: float) -> dict:
     calls = runs[-1][2].calls
     unit_names = list(ins.UNIT_CLASSES)
 
-    def parts(secs: dict, total: float, simpy: float, other_threads: float = 0.0) -> dict:
+    def parts(secs: dict, total: float, simpy: float, timers=None) -> dict:
         """Each part's own time (``secs``: a run's self times, nested timed calls left out); sample
-        generation is the main thread's wait for a region's samples plus ``other_threads`` (the CPU of the
-        threads that make them; zero for wall time, where only the wait is on the critical path)."""
+        generation is the main thread's wait for a region's samples, plus, in CPU time (``timers``
+        given), the CPU of the threads that make them; the tester's helper thread's CPU is the tester's."""
         d = {name: secs.get(name, 0.0) for name in unit_names}
         d["z-cull refresh (in the ROP's steps)"] = secs.get("zcull refresh", 0.0)
-        d["sample generation"] = secs.get("samples wait", 0.0) + other_threads
+        d["sample generation"] = secs.get("samples wait", 0.0)
+        if timers is not None:
+            d["sample_tester"] += timers.helper_cpu
+            d["sample generation"] += timers.other_threads_cpu - timers.helper_cpu
         d["resolve"] = secs.get("resolve", 0.0)
         d["counters and cost model in the steps"] = sum(secs.get("step:" + n, 0.0) for n in unit_names)
         d["SimPy layer (timed alone)"] = simpy
@@ -425,7 +428,7 @@ def unit_breakdown(runs: list, simpy_s: float, simpy_cpu_s: float) -> dict:
         return d
 
     wall_parts = [parts(tm.self_seconds, tot, simpy_s) for tot, _, tm in runs]
-    cpu_parts = [parts(tm.self_cpu, tot, simpy_cpu_s, tm.other_threads_cpu) for _, tot, tm in runs]
+    cpu_parts = [parts(tm.self_cpu, tot, simpy_cpu_s, tm) for _, tot, tm in runs]
     total = float(np.median([r_[0] for r_ in runs]))
     total_cpu = float(np.median([r_[1] for r_ in runs]))
     call_keys = {"sample generation": "make_samples", "resolve": "resolve"}

@@ -122,15 +122,17 @@ class RegionSamples:
 
     Samples depend only on (seed, pixel, sample index), so a region that was
     dropped and is requested again comes back identical (``made`` counts
-    every generation, a repeat included).
+    every set handed out that had to be made, a repeat included).
 
     Once told which regions the pipeline will visit (``will_visit``), the
     first request of a region starts making the next region to be visited on
     a background thread, so that its samples are made while this region's
-    batches run through the pipeline (sample generation runs without the
-    interpreter lock); a request for it then waits for the thread. This
-    holds up to ``keep + 1`` regions' samples at once, and it changes no
-    value: the same function makes the same set.
+    batches run through the pipeline (sample generation's kernels run without
+    the interpreter lock); a request for it then waits for the thread. A
+    region the pipeline skips after all (its tiles were all culled) has its
+    set dropped when a later one is requested. This holds up to ``keep + 1``
+    regions' samples at once, and it changes no value: the same function
+    makes the same set.
     """
 
     def __init__(self, plan: RegionPlan, make: Callable[[tuple[int, int]], SampleSet], keep: int = 3):
@@ -148,6 +150,8 @@ class RegionSamples:
         if s is not None:
             self._sets.move_to_end(region)
             return s
+        for skipped in [r for r in self._pending if r < region]:  # made ahead for a region no batch reached
+            self._pending.pop(skipped).cancel()
         pending = self._pending.pop(region, None)
         s = pending.result() if pending is not None else self._make(self.plan.bounds(region))
         self.made += 1
@@ -179,7 +183,7 @@ class RegionSamples:
         self._sets.clear()
         self._pending.clear()
         if self._pool is not None:
-            self._pool.shutdown(wait=True)
+            self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
 
 

@@ -45,6 +45,7 @@ on a thread pool.
 
 from __future__ import annotations
 
+import ctypes
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -296,6 +297,12 @@ def _sincos(typingctx, x):
         return context.make_tuple(builder, signature.return_type, [builder.load(sin_p), builder.load(cos_p)])
 
     return types.UniTuple(types.float64, 2)(types.float64), codegen
+
+
+if os.name != "posix" or not hasattr(ctypes.CDLL(None), "sincos"):  # no C sincos (not glibc): two calls
+    @numba.njit(**_JIT)
+    def _sincos(x: float) -> tuple[float, float]:  # noqa: F811
+        return np.sin(x), np.cos(x)
 
 
 @numba.njit(**_JIT)

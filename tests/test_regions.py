@@ -118,6 +118,18 @@ def test_the_next_region_to_visit_is_made_ahead_on_another_thread_with_the_same_
     assert regions.made == 3
 
 
+def test_a_region_made_ahead_and_never_requested_is_dropped():
+    plan = RegionPlan(8, 64, 16)
+    regions = RegionSamples(plan, lambda rows: make_samples(8, 64, 4, 1, lens=False, motion=True, rows=rows), keep=1)
+    regions.will_visit([0, 1, 2, 3])
+    try:
+        regions.region(0)  # makes 1 ahead
+        regions.region(2)  # region 1 got no batch after all: its set is dropped, not held to the end
+        assert set(regions._pending) <= {3} and set(regions._sets) == {2}
+    finally:
+        regions.close()
+
+
 @given(start=st.integers(-1, 4), regions=st.lists(st.integers(0, 4), max_size=30))
 def test_a_cursor_enters_each_run_of_a_region_once(start, regions):
     """``enter`` is called at each change of region, with the new one: the

@@ -293,8 +293,10 @@ def test_fast_paths_match_plain_loop_with_lines_and_masks(algorithm):
     assert ev["samples_covered"] > 50
 
 
-@given(moving_triangle(allow_w_cross=False), st.integers(0, 2**31), st.sampled_from([2, 4, 8]))
+@given(st.one_of(moving_triangle(allow_w_cross=False), moving_triangle(allow_w_cross=False, motion=False)),
+       st.integers(0, 2**31), st.sampled_from([2, 4, 8]))
 def test_fast_paths_match_plain_loop_on_adversarial_triangles(tri, seed, tile_size):
+    """Moving triangles, and static defocused ones (pass 1's xyuv formula, without the time terms)."""
     from pipeline_sim.sampling import make_samples
     from units.sample_tester import SampleTester
 

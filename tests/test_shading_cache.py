@@ -694,3 +694,24 @@ def test_the_shading_view_keys_the_cache_and_places_the_shading(view):
     assert covered.sum() > 200 and np.array_equal(covered, cached[..., 3] > 0)
     np.testing.assert_allclose(cached[covered], per_sample[covered], atol=2e-5)
     assert np.abs(default_view[covered][:, :3] - per_sample[covered][:, :3]).max() > 0.05
+
+
+def test_triangles_whose_key_has_the_top_bit_set_are_cached():
+    """Triangle ids from 2^21 set a key's sign bit: still a grid cell (hit on the second look), not the
+    'no cell' sentinel; and a pass of more triangles than a key holds is refused in one line."""
+    from pipeline_sim.errors import UserError
+    from units.shading_cache import MAX_CACHED_TRIANGLES
+
+    ref_row = np.array([[0.0, 0.0, 1.0], [4.0, 0.0, 1.0], [0.0, 4.0, 1.0]])
+    ref = np.broadcast_to(ref_row, (MAX_CACHED_TRIANGLES + 1, 3, 3))
+    tri = np.array([2**21, 2**21, MAX_CACHED_TRIANGLES - 1, MAX_CACHED_TRIANGLES - 1], np.int32)
+    third = np.full(4, 1.0 / 3.0)
+    tags = np.full((4, 2), -1, np.int64)
+    stamps = np.zeros((4, 2), np.int64)
+    ops, ev = np.zeros(N_OPS, np.int64), np.zeros(len(EVENTS), np.int64)
+    cache_kernel(tri, third, third, third, ref, 1.0, tags, stamps, np.full(8, -1, np.int32), 0, REPL_LRU,
+                 *cache_scratch(4), ops, ev)
+    assert ev[EVENTS.index("hits")] == 2 and ev[EVENTS.index("misses")] == 2
+    draw = SimpleNamespace(n=MAX_CACHED_TRIANGLES + 1, width=8, height=8)
+    with pytest.raises(UserError, match="per_sample"):
+        Shading(load_arch().shading, "cache", 1.0, draw, None, None, None, np.zeros(0), None, False)

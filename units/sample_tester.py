@@ -23,7 +23,7 @@ same for the two triangles that share an edge, which makes it watertight.
 from __future__ import annotations
 
 import os
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, wait
 
 import numba as nb
 import numpy as np
@@ -1050,7 +1050,7 @@ SAMPLE_FILTERS = ("lines", "mask")
 
 #: a batch of at least twice this many tile records is tested in two halves on two threads
 SPLIT_RECORDS = 32
-_WORKERS = os.cpu_count() or 1
+_WORKERS = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 _HELPER: list[ThreadPoolExecutor] = []
 
 
@@ -1153,7 +1153,10 @@ class SampleTester:
         if n >= 2 * SPLIT_RECORDS and _WORKERS > 1:
             half = n // 2
             first = _helper_thread().submit(self._test, {k: v[:half] for k, v in tiles.items()}, 0)
-            second = self._test({k: v[half:] for k, v in tiles.items()}, 1)
+            try:
+                second = self._test({k: v[half:] for k, v in tiles.items()}, 1)
+            finally:
+                wait([first])  # never leave the helper writing into buffers a later batch reuses
             parts = [first.result(), second]
         else:
             parts = [self._test(tiles, 0)]
@@ -1170,11 +1173,9 @@ class SampleTester:
         ops[OP_MADD] += m * COVER_OPS_MADD
         # (the kernel numbers pixels from the region's first row)
         first_pix = np.int32(s.row0 * s.width)
-        res = {}
-        for k in parts[0][0]:
-            cols = [out[k][:mp] for out, mp, _, _ in parts]
-            res[k] = (cols[0] if len(cols) == 1 else np.concatenate(cols)) + first_pix if k == "pix" else \
-                np.concatenate(cols)  # (a copy, even of one part: the buffers are reused)
+        # (a copy, even of one part: the buffers are reused)
+        res = {k: np.concatenate([out[k][:mp] for out, mp, _, _ in parts]) for k in parts[0][0]}
+        res["pix"] += first_pix
         return res, ops, events
 
     def _test(self, tiles: dict[str, np.ndarray], slot: int) -> tuple[dict[str, np.ndarray], int, np.ndarray,

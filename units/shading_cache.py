@@ -28,6 +28,7 @@ from pipeline_sim.definitions import (COMMON, IN_B, IN_DEPTH, IN_MATERIAL, IN_NX
                                       IN_SAMPLE, IN_T, IN_T_HI, IN_T_LO, IN_TRIANGLE, IN_TUPLE, IN_U, IN_U_HI, IN_U_LO,
                                       IN_V, IN_V_HI, IN_V_LO, IN_X, IN_Y, IN_Z_HI, IN_Z_LO, N_INPUTS, N_OPS, OP_CMP,
                                       OP_MADD, OP_MUL, OP_RCP)
+from pipeline_sim.errors import UserError
 
 # its events, in the order of the kernel's event vector, and what each counts
 EVENT_MEANINGS = {
@@ -48,6 +49,7 @@ CELL_BITS = 21
 CELL_LIMIT = 1 << (CELL_BITS - 1)  # shading-grid cells are keyed in [-2^20, 2^20) per axis
 CELL_MASK = (1 << CELL_BITS) - 1
 HASH_MUL = np.uint64(0x9E3779B97F4A7C15)
+MAX_CACHED_TRIANGLES = (1 << (64 - 2 * CELL_BITS)) - 1  # a key's triangle field: the bits above the two cells
 
 
 @nb.njit(cache=True)
@@ -113,7 +115,7 @@ def cache_kernel(tri, b0, b1, b2, ref, rate, tags, stamps, entry_req, clock, rep
         tr = tri[i]
         key = keys[i]
         clock += 1
-        if key < 0:
+        if key == -1:
             # the surface point is behind the reference camera (or absurdly far
             # off screen): it has no shading-grid cell, so it is shaded on its
             # own, uncached, at its own barycentrics
@@ -304,6 +306,9 @@ class Shading:
         self.append = (np.zeros((0, 1), np.float32), np.zeros(1, np.int64)) if append is None else append
         self.conservative = conservative
         self.cached = mode == "cache" and not conservative
+        if self.cached and draw.n > MAX_CACHED_TRIANGLES:
+            raise UserError(f"the shading cache keys at most {MAX_CACHED_TRIANGLES:,} triangles and the pass draws "
+                            f"{draw.n:,}: set pass.shading_mode = \"per_sample\"")
         ways = config.cache_ways
         nsets = config.cache_entries // ways
         self.tags = np.full((nsets, ways), -1, np.int64)

@@ -2,7 +2,7 @@
 
 Implements docs/pipeline.md §2.3. The culling algorithm (``tile_test.algorithm``)
 is a module of ``units.culling`` that declares its events, record extensions
-and setup part; ``tile_test_kernel`` runs its branch per record with the
+and setup part; ``tile_test_kernel_for`` compiles its branch, run per record with the
 shared bounds of ``units.tile_test_bounds`` (the moving box and edges of
 Munkberg11 §4, lens intervals after Laine11 and Wu13 §2-3, z^ from Nilsson12
 App. A) or the module's own (convex hull, dual-space and two-stage time
@@ -64,7 +64,7 @@ def tile_test_kernel_for(algorithm: int, quadratic: bool) -> Callable:
     the other algorithms' branches before it compiles: a run compiles only the
     bounds its algorithm uses (every variant is cached on disk like any kernel).
     """
-    key = (int(algorithm), bool(quadratic))
+    key = (int(algorithm), bool(quadratic) and algorithm == ALG_HIERARCHICAL)  # only its edge test solves them
     kernel = _KERNELS.get(key)
     if kernel is None:
         kernel = _KERNELS[key] = _compile_kernel(*key)
