@@ -83,8 +83,12 @@ FACING_REL = 1e-10
 
 FLAG_LENS, FLAG_WPOS, FLAG_EDGE, FLAG_MOVING, FLAG_PLANE = 1, 2, 4, 8, 16
 
+# the kernel's helpers, called from compiled code only: without the wrappers that let Python call a
+# function, which numba otherwise builds and optimises for each (a good part of a helper's compile time)
+_helper = nb.njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)
 
-@nb.njit(cache=True)
+
+@_helper
 def _interval_hull_nonneg(a, b, lo, hi):
     """Grow [lo, hi] by the part of [0,1] where a + b t >= 0 (hull of the union)."""
     end = a + b
@@ -115,7 +119,7 @@ def _homogeneous_scale(q, r, lens_x, lens_y, tri):
     return math.ldexp(1.0, min(-math.frexp(m)[1], 1023))
 
 
-@nb.njit(cache=True)
+@_helper
 def _det(x0, y0, w0, x1, y1, w1, x2, y2, w2):
     # D = p0 . (p2 x p1); positive for front-facing (counter-clockwise in NDC)
     cx = y2 * w1 - w2 * y1
@@ -228,7 +232,7 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
         status[b] = ST_OK
 
 
-@nb.njit(cache=True)
+@_helper
 def _pixel_space(q, r, lens_x, lens_y, tri, hx, hy, px, lx):
     """Homogeneous normalisation and the pixel-space transform of ``tri`` (module docstring):
     fills ``px`` with (X, Y, Z, W) and ``lx`` with the lens shift (LX, LY) of each vertex at t=0
@@ -258,7 +262,7 @@ def _pixel_space(q, r, lens_x, lens_y, tri, hx, hy, px, lx):
     return sc, moving, has_lens
 
 
-@nb.njit(cache=True)
+@_helper
 def _store_vertices(px, lx, view, width, height, tri, p0, dp, l0, dl, p0_32, dp_32, l0_32, dl_32, ref, edge_eps):
     """Writes the vertices of ``tri`` (at t=0 and their change to t=1, float64 and float32), the vertices
     its reference camera sees and the float32 edge-function error bound of the sample tester."""
@@ -289,7 +293,7 @@ def _store_vertices(px, lx, view, width, height, tri, p0, dp, l0, dl, p0_32, dp_
     edge_eps[tri] = np.float32(2e-6 * m * m * (width + height + 1.0))
 
 
-@nb.njit(cache=True)
+@_helper
 def _frustum_span(px, lx, width, height, scratch):
     """Temporal frustum culling (Munkberg11 §3), lens-conservative: the span [ts, te] of
     the shutter in which a vertex can be inside each of the six clip planes (empty: ts > te)."""
@@ -338,7 +342,7 @@ def _frustum_span(px, lx, width, height, scratch):
     return ts, te
 
 
-@nb.njit(cache=True)
+@_helper
 def _determinant_bounds(px, lx, moving, has_lens, scratch):
     """Conservative facing: (min, max) of the Bernstein coefficients of the determinant D(t, u, v)
     over the lens corners, cubic in t (Gribel10 §4.3), and its scale max |p0||p1||p2|."""
@@ -376,7 +380,7 @@ def _determinant_bounds(px, lx, moving, has_lens, scratch):
     return bern_min, bern_max, scale
 
 
-@nb.njit(cache=True)
+@_helper
 def _vertices_coincide(px, lx):
     """Whether two vertices coincide for every (t, u, v): zero area throughout. (An exactly zero
     determinant is the other case; a tiny one can still cover samples: a vertex near the 2DH
@@ -399,7 +403,7 @@ def _vertices_coincide(px, lx):
     return False
 
 
-@nb.njit(cache=True)
+@_helper
 def _screen_bounds(px, lx, ts, te, width, height):
     """Conservative screen bounds over [ts, te] (Munkberg11 §3): (w > 0 throughout, x0, x1, y0, y1)
     in pixels, exclusive ends; the whole screen when a vertex path crosses w = 0."""
@@ -433,7 +437,7 @@ def _screen_bounds(px, lx, ts, te, width, height):
     return True, bx0, bx1, by0, by1
 
 
-@nb.njit(cache=True)
+@_helper
 def _moving_edges(px, sgn, bx0, bx1, by0, by1, tile_size, tri, edge_f, edge_h, edge_gamma, edge_g, edge_fg, edge_abs,
                   scratch):
     """The linearized moving edges of a motion-only triangle of facing ``sgn`` (Munkberg11 eq. 4-7):
@@ -498,7 +502,7 @@ def _moving_edges(px, sgn, bx0, bx1, by0, by1, tile_size, tri, edge_f, edge_h, e
             edge_fg[tri, k, c] = sgn * (fv[c] + gv[c])
 
 
-@nb.njit(cache=True)
+@_helper
 def _moving_planes(px, lx, sc, tri, plane_n, plane_d, scratch):
     """Moving plane equations for depth bounds (Nilsson12 App. A): the triangle's plane at t=0
     and t=1 and, per side, its offsets over the vertices and lens positions, in the draw's units."""
@@ -540,7 +544,7 @@ def _moving_planes(px, lx, sc, tri, plane_n, plane_d, scratch):
                 plane_d[tri, which, 1, 1] = -lo_v - plane_d[tri, which, 1, 0]
 
 
-@nb.njit(cache=True)
+@_helper
 def _abs_cross3(ax, ay, aw, bx, by, bw, out):
     """Per component, the sum of the absolute products of a x b (a bound on its rounding)."""
     out[0] = abs(ay * bw) + abs(aw * by)
@@ -548,7 +552,7 @@ def _abs_cross3(ax, ay, aw, bx, by, bw, out):
     out[2] = abs(ax * by) + abs(ay * bx)
 
 
-@nb.njit(cache=True)
+@_helper
 def _cross3(ax, ay, aw, bx, by, bw, out):
     out[0] = ay * bw - aw * by
     out[1] = aw * bx - ax * bw
