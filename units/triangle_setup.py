@@ -84,8 +84,11 @@ FACING_REL = 1e-10
 FLAG_LENS, FLAG_WPOS, FLAG_EDGE, FLAG_MOVING, FLAG_PLANE = 1, 2, 4, 8, 16
 
 # the kernel's helpers, called from compiled code only: without the wrappers that let Python call a
-# function, which numba otherwise builds and optimises for each (a good part of a helper's compile time)
-_helper = nb.njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True)
+# function, which numba otherwise builds and optimises for each (a good part of a helper's compile time),
+# and without reference counting (they allocate nothing; the kernel holds every array they take):
+# LLVM inlines them into the kernel, but not the count up and down of each array argument, which
+# measured a third of setup's run time
+_helper = nb.njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, _nrt=False)
 
 
 @_helper
@@ -142,7 +145,13 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
     Each step of the module docstring is a helper of its own, called (not inlined) here: numba's
     compile time grows faster than a function's length, and one long body took most of setup's.
     """
+    # the table's arrays taken once: each use of a field of the namedtuple counts a reference up and down
+    p0, dp, l0, dl = table.p0, table.dp, table.l0, table.dl
+    p0_32, dp_32, l0_32, dl_32 = table.p0_32, table.dp_32, table.l0_32, table.dl_32
     t_span, bounds, facing, flags = table.t_span, table.bounds, table.facing, table.flags
+    edge_f, edge_h, edge_gamma, edge_g = table.edge_f, table.edge_h, table.edge_gamma, table.edge_g
+    edge_fg, edge_abs, ref, edge_eps = table.edge_fg, table.edge_abs, table.ref, table.edge_eps
+    plane_n, plane_d = table.plane_n, table.plane_d
     hx = 0.5 * width
     hy = 0.5 * height
     px = np.empty((2, 3, 4))  # pixel-space (X, Y, Z, W) at t=0, t=1
@@ -158,8 +167,7 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
             events[EV_MOVING] += 1
         if has_lens:
             events[EV_DEFOCUS] += 1
-        _store_vertices(px, lx, view, width, height, tri, table.p0, table.dp, table.l0, table.dl, table.p0_32,
-                        table.dp_32, table.l0_32, table.dl_32, table.ref, table.edge_eps)
+        _store_vertices(px, lx, view, width, height, tri, p0, dp, l0, dl, p0_32, dp_32, l0_32, dl_32, ref, edge_eps)
 
         ts, te = _frustum_span(px, lx, width, height, scratch)
         ops[OP_MADD] += 6 * 12
@@ -217,14 +225,14 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
         bounds[tri, 3] = by1
 
         if (not has_lens) and facing[tri] != 0:
-            _moving_edges(px, float(facing[tri]), bx0, bx1, by0, by1, tile_size, tri, table.edge_f, table.edge_h,
-                          table.edge_gamma, table.edge_g, table.edge_fg, table.edge_abs, scratch)
+            _moving_edges(px, float(facing[tri]), bx0, bx1, by0, by1, tile_size, tri, edge_f, edge_h, edge_gamma, edge_g,
+                          edge_fg, edge_abs, scratch)
             fl |= FLAG_EDGE
             ops[OP_MUL] += 3 * 18
             ops[OP_MADD] += 3 * 18
             ops[OP_CMP] += 3 * 6
         if depth_planes and wpos:
-            _moving_planes(px, lx, sc, tri, table.plane_n, table.plane_d, scratch)
+            _moving_planes(px, lx, sc, tri, plane_n, plane_d, scratch)
             fl |= FLAG_PLANE
             ops[OP_MUL] += 2 * (6 + 3 * 2 * 5)
             ops[OP_MADD] += 2 * (6 + 3 * 2 * 4)
