@@ -142,8 +142,9 @@ def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_c
     ``table`` (``pipeline_sim.records.TRIANGLE``) in place, ``status`` per batch item and accumulates ``ops`` (arithmetic
     classes) and ``events``.
 
-    Each step of the module docstring is a helper of its own, called (not inlined) here: numba's
-    compile time grows faster than a function's length, and one long body took most of setup's.
+    Each step of the module docstring is a helper of its own, which numba compiles once as a function
+    (LLVM inlines it afterwards): numba's compile time grows faster than a function's length, and one
+    long body took most of setup's.
     """
     # the table's arrays taken once: each use of a field of the namedtuple counts a reference up and down
     p0, dp, l0, dl = table.p0, table.dp, table.l0, table.dl
