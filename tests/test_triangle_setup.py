@@ -6,9 +6,9 @@ from hypothesis import strategies as st
 
 from pipeline_sim.config import load_arch
 from pipeline_sim.draw import draw_from_clip
-from triangles import moving_triangle
-from units.triangle_setup import (EV_BACKFACE, EV_DEGENERATE, EVENTS, FLAG_EDGE, ST_BACKFACE, ST_DEGENERATE,
-                                  ST_OK, TriangleSetup)
+from triangles import finite, moving_triangle
+from units.triangle_setup import (EV_BACKFACE, EV_DEGENERATE, EVENTS, FLAG_EDGE, FLAG_WPOS, ST_BACKFACE,
+                                  ST_DEGENERATE, ST_OK, TriangleSetup)
 
 W, H = 48, 32
 
@@ -147,6 +147,40 @@ def test_linearized_edges_bound_the_edge_functions(tri, seed):
             e = sgn * np.dot(np.cross(p[j], p[i]), s)
             bound = np.dot(tb.edge_h[0, k], s) + tb.edge_gamma[0, k] * t
             assert e <= bound + 1e-9 * (1 + abs(bound) + abs(e))
+
+
+@given(moving_triangle(allow_w_cross=False))
+def test_screen_bounds_hold_every_projected_vertex_and_no_more(tri):
+    """Munkberg11 §3: the screen bounds hold each vertex's position X / W, Y / W (pixels, clamped to the
+    screen) at every t in [ts, te] and lens position u, v in [-1, 1], sampled densely in float64, and start
+    and end within a pixel of those positions' extremes (the extremes are at the ends of the span and of the lens)."""
+    q, r, lx, ly = tri
+    setup, alive, _ = run_setup(q, r, lx, ly)
+    tb = setup.table
+    if len(alive) == 0 or not tb.flags[0] & FLAG_WPOS:
+        return
+    ts, te = tb.t_span[0]
+    p = np.array([pixel_vertices(q, r, lx, ly, t, u, v)[0] for t in np.linspace(ts, te, 17)
+                  for u in np.linspace(-1, 1, 5) for v in np.linspace(-1, 1, 5)])
+    x = np.clip(p[..., 0] / p[..., 2], 0, W)
+    y = np.clip(p[..., 1] / p[..., 2], 0, H)
+    x0, x1, y0, y1 = tb.bounds[0]
+    assert x0 <= x.min() and x.max() <= x1 and y0 <= y.min() and y.max() <= y1
+    assert x0 >= np.floor(x.min()) - 1 and x1 <= np.ceil(x.max()) + 1
+    assert y0 >= np.floor(y.min()) - 1 and y1 <= np.ceil(y.max()) + 1
+
+
+@given(moving_triangle(), st.tuples(finite(-1.0, 1.0), finite(-1.0, 1.0), finite(0.0, 1.0)))
+def test_reference_camera_sees_the_projected_vertices(tri, view):
+    """``ref``: each vertex's (X, Y, W) at the shading view's (t, u, v) (Nilsson12 §8), as the float64
+    projection computes it, up to float32 rounding."""
+    q, r, lx, ly = tri
+    u, v, t = view
+    d = draw_from_clip(q, r, lx, ly, width=W, height=H)
+    setup = TriangleSetup(load_arch().triangle_setup, d, 8, shading_view=view)
+    setup.run(np.arange(d.n, dtype=np.int64))
+    expect = pixel_vertices(q, r, lx, ly, t, u, v)[0]
+    np.testing.assert_allclose(setup.table.ref[0], expect, rtol=0, atol=1e-6 * np.abs(expect).max())
 
 
 def test_zero_area_triangles_kept_without_facing_in_conservative_mode():

@@ -38,11 +38,13 @@ def traverse_kernel(ids, bounds, t_span, p0, dp, l0, dl, tile_size, coarse_facto
 
     Coarse tiles are tested against the moving 2DH box (Munkberg11 §4.1, eq. 1-2).
     (The setup table's arrays, not the table: a namedtuple argument measured 3-7% slower.)
+    A triangle id is an int32, as in the tile records the tile test passes to the same
+    ``box_time_interval``: one signature, so numba compiles it once for both units.
     """
     n = 0
     ctile = tile_size * coarse_factor
     for b in range(ids.shape[0]):
-        tri = ids[b]
+        tri = np.int32(ids[b])
         bx0 = bounds[tri, 0]
         bx1 = bounds[tri, 1]
         by0 = max(bounds[tri, 2], row_lo)
