@@ -158,10 +158,8 @@ class Timers:
     """Accumulated wall (perf_counter) and CPU seconds of the calling thread (thread_time) and calls per key;
     ``self_seconds`` and ``self_cpu`` leave out the timed calls made inside (a screen region's samples
     waited for or resolved within a stage's step), except those of :data:`TRANSPARENT` keys, which their
-    caller's time keeps. Timed calls nest on the main thread; a :data:`TRANSPARENT` key's calls may also
-    run on a helper thread (the tester's kernel on the first half of a split batch): its seconds and CPU
-    are summed over the threads, and ``helper_cpu`` is the helper's share. The CPU of sample generation's
-    threads is what the process used beyond the main thread and that helper."""
+    caller's time keeps. Every timed call is made on the main thread; the CPU of sample generation's
+    threads is what the process used beyond it."""
 
     def __init__(self):
         self.seconds: dict[str, float] = defaultdict(float)
@@ -171,8 +169,7 @@ class Timers:
         self.self_cpu: dict[str, float] = defaultdict(float)
         self.stack: list[list[float]] = []  # per open timed call: its timed children's wall and CPU
         self.other_threads_cpu = 0.0  # CPU the process used beyond the main thread (set by the caller)
-        self.lock = threading.Lock()  # for the calls of TRANSPARENT keys, from any thread
-        self.helper_cpu = 0.0  # CPU of TRANSPARENT calls made on other threads (the tester's helper)
+        self.lock = threading.Lock()  # for the sample sets counted on any thread
 
 
 #: Keys timed inside a unit's run whose time stays that unit's (the tester's kernel).
@@ -181,19 +178,16 @@ TRANSPARENT = ("sample_test_kernel",)
 
 def _timed(fn, timers: Timers, key: str):
     if key in TRANSPARENT:
-        def summed(*a, **k):
+        def transparent(*a, **k):
             t0, c0 = time.perf_counter(), time.thread_time()
             try:
                 return fn(*a, **k)
             finally:
                 wall, cpu = time.perf_counter() - t0, time.thread_time() - c0
-                with timers.lock:
-                    timers.seconds[key] += wall
-                    timers.cpu[key] += cpu
-                    timers.calls[key] += 1
-                    if threading.current_thread() is not threading.main_thread():
-                        timers.helper_cpu += cpu
-        return summed
+                timers.seconds[key] += wall
+                timers.cpu[key] += cpu
+                timers.calls[key] += 1
+        return transparent
 
     def wrapper(*a, **k):
         children = [0.0, 0.0]

@@ -255,26 +255,6 @@ def test_fast_paths_match_plain_loop(tile_size, spp, pattern, width, height, cul
         assert np.concatenate([o[key] for o in per_record]).tobytes() == whole[key].tobytes()
 
 
-@pytest.mark.parametrize("workers, split_records", [(1, 32), (2, 1), (2, 5)])
-def test_a_batch_split_over_two_threads_matches_the_plain_loop(monkeypatch, workers, split_records):
-    """Tested in two halves at once (or not), a batch gives the plain loop's samples in order and counters."""
-    import units.sample_tester as tester_module
-    from pipeline_sim.sampling import make_samples
-    from units.sample_tester import SampleTester
-
-    monkeypatch.setattr(tester_module, "_WORKERS", workers)
-    monkeypatch.setattr(tester_module, "SPLIT_RECORDS", split_records)
-    rng = np.random.default_rng(11)
-    q, r, lx, ly = random_draw(rng, 12, 48, 32)
-    setup, _, tiles = setup_and_tiles(q, r, lx, ly, 48, 32, tile_size=4, backface_culling=False)
-    samples = make_samples(48, 32, 16, 3, lens=True, motion=True)
-    tester = SampleTester(None, setup.table, samples, 4, False, True)
-    _, ev = assert_tester_matches_reference(tester, tiles)
-    assert ev["samples_covered"] > 100
-    for n in (2 * split_records + 1, 3):  # odd halves, and a batch too small to split
-        assert_tester_matches_reference(tester, {k: v[:n] for k, v in tiles.items()})
-
-
 @pytest.mark.parametrize("algorithm", ["two_stage", "interleave_uvt"])
 def test_fast_paths_match_plain_loop_with_lines_and_masks(algorithm):
     from pipeline_sim.sampling import make_samples

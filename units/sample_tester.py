@@ -22,9 +22,6 @@ same for the two triangles that share an edge, which makes it watertight.
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor, wait
-
 import numba as nb
 import numpy as np
 
@@ -687,7 +684,7 @@ def _tile_major(width, height, row0, spp, tile_size, x, y, u, v, t, tup, ax, ay,
     stats[5] = v_hi
 
 
-@nb.njit(cache=True, error_model="numpy", nogil=True)
+@nb.njit(cache=True, error_model="numpy")
 def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, noread_in,
                        lines, masks, tile_size, width, height, spp, sx, sy, su, sv, st, stup, slot_lo, slot_hi,
                        uv_range, xy_max, row0,
@@ -1048,19 +1045,6 @@ _NO_TUPLES = np.zeros(0, np.int8)
 SAMPLE_FILTERS = ("lines", "mask")
 
 
-#: a batch of at least twice this many tile records is tested in two halves on two threads
-SPLIT_RECORDS = 32
-_WORKERS = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-_HELPER: list[ThreadPoolExecutor] = []
-
-
-def _helper_thread() -> ThreadPoolExecutor:
-    """The one thread that tests the first half of a split batch (made on first use)."""
-    if not _HELPER:
-        _HELPER.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="sample-tester"))
-    return _HELPER[0]
-
-
 class SampleTester:
     """Functional model of the sample tester unit.
 
@@ -1084,7 +1068,7 @@ class SampleTester:
         self._layout = None
         self._buffers = None  # the tile-major float32 arrays (``layout``), sized for the largest region so far
         self._tup_buffer = None
-        self._out = [None, None]  # per thread, the kernel's output buffers, sized for the largest batch so far
+        self._out = None  # the kernel's output buffers, sized for the largest batch so far (``run`` copies them)
         if samples is not None:
             self.use_samples(samples)
 
@@ -1141,28 +1125,14 @@ class SampleTester:
                 ops, events)
 
     def run(self, tiles: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
-        """Test a batch of tile records; return the covered samples in record order, ops and events.
-
-        A batch of at least ``2 * SPLIT_RECORDS`` records is tested in two halves at once, the first on a
-        helper thread (the kernel runs without the interpreter lock): each record's samples depend on
-        that record alone, so the halves' outputs, put one after the other, and their summed counters
-        are those of the whole batch."""
         s = self.samples
-        n = len(tiles["tri"])
-        self.layout()  # once, before the halves share it
-        if n >= 2 * SPLIT_RECORDS and _WORKERS > 1:
-            half = n // 2
-            first = _helper_thread().submit(self._test, {k: v[:half] for k, v in tiles.items()}, 0)
-            try:
-                second = self._test({k: v[half:] for k, v in tiles.items()}, 1)
-            finally:
-                wait([first])  # never leave the helper writing into buffers a later batch reuses
-            parts = [first.result(), second]
-        else:
-            parts = [self._test(tiles, 0)]
-        ops = sum(p[2] for p in parts)
-        events = sum(p[3] for p in parts)
-        m = int(sum(p[1] for p in parts))
+        cap = len(tiles["tri"]) * self.tile_size * self.tile_size * s.spp
+        if self._out is None or len(self._out["tri"]) < cap:
+            self._out = SAMPLE.allocate(cap, fill=False)
+        out = self._out
+        ops = np.zeros(N_OPS, np.int64)
+        events = np.zeros(len(EVENTS), np.int64)
+        m = sample_test_kernel(*self.kernel_args(tiles, out, ops, events))
         tested = events[EV_TESTED]
         for d_ in range(4):
             ops[OP_MADD] += events[EV_2D + d_] * TEST_OPS_MADD[d_]
@@ -1172,20 +1142,6 @@ class SampleTester:
         ops[OP_MUL] += m * COVER_OPS_MUL
         ops[OP_MADD] += m * COVER_OPS_MADD
         # (the kernel numbers pixels from the region's first row)
-        first_pix = np.int32(s.row0 * s.width)
-        # (a copy, even of one part: the buffers are reused)
-        res = {k: np.concatenate([out[k][:mp] for out, mp, _, _ in parts]) for k in parts[0][0]}
-        res["pix"] += first_pix
+        first = np.int32(s.row0 * s.width)
+        res = {k: v[:m] + first if k == "pix" else v[:m].copy() for k, v in out.items()}
         return res, ops, events
-
-    def _test(self, tiles: dict[str, np.ndarray], slot: int) -> tuple[dict[str, np.ndarray], int, np.ndarray,
-                                                                        np.ndarray]:
-        """The kernel on ``tiles`` into output buffers ``slot`` (one per thread): (buffers, covered, ops, events)."""
-        cap = len(tiles["tri"]) * self.tile_size * self.tile_size * self.samples.spp
-        if self._out[slot] is None or len(self._out[slot]["tri"]) < cap:
-            self._out[slot] = SAMPLE.allocate(cap, fill=False)
-        out = self._out[slot]
-        ops = np.zeros(N_OPS, np.int64)
-        events = np.zeros(len(EVENTS), np.int64)
-        m = sample_test_kernel(*self.kernel_args(tiles, out, ops, events))
-        return out, m, ops, events
