@@ -1,4 +1,5 @@
-"""What the pass layer costs: the default pass A/B against earlier revisions, in one run.
+"""What the pass layer costs, and what the cost-per-sample work saved: the default pass A/B against earlier
+revisions, in one run.
 
 Each revision of ``REVISIONS`` (and the working tree) is extracted with
 ``git archive`` into a temporary folder and runs the default workload
@@ -29,8 +30,10 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 
-#: (label, revision): before issue 12 began, and before its pass layer (targets, draws, shader interface)
-REVISIONS = (("before issue 12 (d6313f9)", "d6313f9"), ("before the pass layer (6d2ecd5)", "6d2ecd5"))
+#: (label, revision): before issue 12 began, before its pass layer (targets, draws, shader interface), and
+#: before issue 19's cost-per-sample work
+REVISIONS = (("before issue 12 (d6313f9)", "d6313f9"), ("before the pass layer (6d2ecd5)", "6d2ecd5"),
+             ("before the cost-per-sample work (f07c12f)", "f07c12f"))
 CURRENT = "working tree"
 
 CHILD = """

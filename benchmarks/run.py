@@ -113,7 +113,8 @@ unless said otherwise:
    each record's tile (the tester's whole input), in tile samples a second.
 10. ("ab" section) What the pass layer costs (benchmarks/ab.py): the default
    pass in the working tree against earlier revisions extracted with
-   ``git archive`` (before issue 12, before its pass layer), each in fresh
+   ``git archive`` (before issue 12, before its pass layer, before the
+   cost-per-sample work), each in fresh
    subprocesses in rotating order, in one run: wall and CPU time, their
    ratios, and whether image and counters are the same. Writes ``ab.csv``.
 11. ("convergence" section) Error against samples per pixel, per sample
