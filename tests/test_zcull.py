@@ -241,6 +241,26 @@ def brute_zmax(samples, depth, tile_size, nt, nl):
     return out
 
 
+def zcull_and_rop(cfg, state, w, h, spp, ts, rows, seed):
+    """A z-cull unit and a ROP refreshing it over regions of ``rows`` rows, region 0 open: (plan, the regions'
+    samples, z-cull, ROP)."""
+    plan = RegionPlan(w, h, rows)
+    regions = RegionSamples(plan, lambda r: make_samples(w, h, spp, seed, lens=True, motion=True, rows=r))
+    zcull = zc.ZCull(cfg, state.depth_test, ts, w, h, 1.0)
+    rop = Rop(RopConfig(), state, w, h, spp, (0, 0, 0, 1), 1.0, zcull, regions.region(0), rows=plan.bounds(0))
+    return plan, regions, zcull, rop
+
+
+def each_region(plan, regions, rop):
+    """The regions in order, each opened on the ROP (region 0 is open already): (first row, end row, samples)."""
+    for region in range(plan.count):
+        r0, r1 = plan.bounds(region)
+        samples = regions.region(region)
+        if region:
+            rop.open_region((r0, r1), samples)
+        yield r0, r1, samples
+
+
 @pytest.mark.parametrize("func,depth_write,slices,boxes,rows", [
     ("less", True, 4, 2, 4), ("lequal", True, 4, 2, 8), ("lequal", True, 2, 3, 12),
     ("less", False, 4, 2, 8), ("lequal", True, 1, 1, 4)])
@@ -255,17 +275,10 @@ def test_refresh_matches_brute_force_after_every_batch(func, depth_write, slices
     w, h, spp, ts = 10, 12, 4, 4
     arch = load_arch()
     cfg = dataclasses.replace(arch.zcull, time_slices=slices, lens_boxes=boxes)
-    plan = RegionPlan(w, h, rows)
-    regions = RegionSamples(plan, lambda r: make_samples(w, h, spp, 5, lens=True, motion=True, rows=r))
-    zcull = zc.ZCull(cfg, func, ts, w, h, 1.0)
-    rop = Rop(RopConfig(), PassState(depth_test=func, depth_write=depth_write), w, h, spp, (0, 0, 0, 1), 1.0, zcull,
-              regions.region(0), rows=plan.bounds(0))
+    plan, regions, zcull, rop = zcull_and_rop(cfg, PassState(depth_test=func, depth_write=depth_write), w, h, spp, ts,
+                                              rows, seed=5)
     levels = np.array([0.0, -0.0, 0.25, 0.5, 0.5, 0.75, 1.0], np.float32)
-    for region in range(plan.count):
-        r0, r1 = plan.bounds(region)
-        samples = regions.region(region)
-        if region:
-            rop.open_region((r0, r1), samples)
+    for r0, r1, samples in each_region(plan, regions, rop):
         t0 = r0 // ts * zcull.tiles_x
         box = [brute_box(samples, k, slices, boxes) for k in range(len(samples.t))]
         scanned = set()  # tiles refreshed from this region's depth buffer
@@ -363,17 +376,9 @@ def test_refresh_of_many_samples_per_box_matches_numpy(func, slices, boxes, spp,
     rng = np.random.default_rng(spp + slices + boxes + rows + group)
     w, h, ts = 14, 12, 4
     cfg = dataclasses.replace(load_arch().zcull, time_slices=slices, lens_boxes=boxes)
-    plan = RegionPlan(w, h, rows)
-    regions = RegionSamples(plan, lambda r: make_samples(w, h, spp, 9, lens=True, motion=True, rows=r))
-    zcull = zc.ZCull(cfg, func, ts, w, h, 1.0)
-    rop = Rop(RopConfig(), PassState(depth_test=func), w, h, spp, (0, 0, 0, 1), 1.0, zcull, regions.region(0),
-              rows=plan.bounds(0))
+    plan, regions, zcull, rop = zcull_and_rop(cfg, PassState(depth_test=func), w, h, spp, ts, rows, seed=9)
     levels = np.array([0.0, -0.0, 0.5, 0.5, 0.75, 0.9], np.float32)
-    for region in range(plan.count):
-        r0, r1 = plan.bounds(region)
-        samples = regions.region(region)
-        if region:
-            rop.open_region((r0, r1), samples)
+    for r0, r1, samples in each_region(plan, regions, rop):
         t0 = r0 // ts * zcull.tiles_x
         box = np.array([brute_box(samples, k, slices, boxes) for k in range(len(samples.t))])
         tile_of = ((np.arange(len(box)) // spp // w // ts) * zcull.tiles_x + np.arange(len(box)) // spp % w // ts)
