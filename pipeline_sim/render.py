@@ -37,7 +37,7 @@ from pipeline_sim.targets import AppendBuffer, AppendResult, ShaderOutput, Targe
 from units import culling
 from units.rop import Rop
 from units.sample_tester import EV_2D, EV_PIXELS, TEST_OPS_MADD, TEST_OPS_MUL, SampleTester
-from units.shading_cache import Shading
+from units.shading_cache import MAX_CACHED_TRIANGLES, Shading
 from units.tile_test import TileTest
 from units.tile_traverser import TileTraverser
 from units.triangle_setup import TriangleSetup
@@ -211,6 +211,9 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
             raise UserError(f"{where}: draw {i} asks an interval query, which needs z-cull: zcull.enabled, "
                             "depth test less or lequal, standard mode")
     tester = SampleTester(arch.sample_tester, setup.table, None, ts, state.backface_culling, spec)
+    if cached_shading and draw.n > MAX_CACHED_TRIANGLES:
+        raise UserError(f"{where}: the shading cache keys at most {MAX_CACHED_TRIANGLES:,} triangles and the pass "
+                        f"draws {draw.n:,}: set pass.shading_mode = \"per_sample\"")
     shading = Shading(arch.shading, state.shading_mode, state.shading_rate, draw, setup.table, None, p.shader,
                       p.params, shader_textures, conservative, sum(o.channels for o in p.outputs), append,
                       shading_view=state.shading_view)

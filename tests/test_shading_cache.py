@@ -698,8 +698,7 @@ def test_the_shading_view_keys_the_cache_and_places_the_shading(view):
 
 def test_triangles_whose_key_has_the_top_bit_set_are_cached():
     """Triangle ids from 2^21 set a key's sign bit: still a grid cell (hit on the second look), not the
-    'no cell' sentinel; and a pass of more triangles than a key holds is refused in one line."""
-    from pipeline_sim.errors import UserError
+    'no cell' sentinel; a unit for more triangles than a key holds is refused."""
     from units.shading_cache import MAX_CACHED_TRIANGLES
 
     ref_row = np.array([[0.0, 0.0, 1.0], [4.0, 0.0, 1.0], [0.0, 4.0, 1.0]])
@@ -713,5 +712,17 @@ def test_triangles_whose_key_has_the_top_bit_set_are_cached():
                  *cache_scratch(4), ops, ev)
     assert ev[EVENTS.index("hits")] == 2 and ev[EVENTS.index("misses")] == 2
     draw = SimpleNamespace(n=MAX_CACHED_TRIANGLES + 1, width=8, height=8)
-    with pytest.raises(UserError, match="per_sample"):
+    with pytest.raises(ValueError, match="at most"):
         Shading(load_arch().shading, "cache", 1.0, draw, None, None, None, np.zeros(0), None, False)
+
+
+def test_a_pass_of_more_triangles_than_a_cache_key_holds_is_refused_in_one_line(monkeypatch):
+    from pipeline_sim import render
+    from pipeline_sim.errors import UserError
+
+    draw = draw_from_clip(np.array([[[-0.5, -0.5, 0.2, 1.0], [0.5, -0.5, 0.2, 1.0], [0.0, 0.5, 0.2, 1.0]]] * 2),
+                          width=8, height=8)
+    monkeypatch.setattr(render, "MAX_CACHED_TRIANGLES", 1)
+    with pytest.raises(UserError, match="keys at most 1 triangles and the pass draws 2.*per_sample"):
+        run_pass(RenderPass(draw=draw, arch=load_arch(), spp=1))
+    assert run_pass(RenderPass(draw=draw, arch=load_arch(), spp=1, state=PassState(shading_mode="per_sample")))

@@ -28,7 +28,6 @@ from pipeline_sim.definitions import (COMMON, IN_B, IN_DEPTH, IN_MATERIAL, IN_NX
                                       IN_SAMPLE, IN_T, IN_T_HI, IN_T_LO, IN_TRIANGLE, IN_TUPLE, IN_U, IN_U_HI, IN_U_LO,
                                       IN_V, IN_V_HI, IN_V_LO, IN_X, IN_Y, IN_Z_HI, IN_Z_LO, N_INPUTS, N_OPS, OP_CMP,
                                       OP_MADD, OP_MUL, OP_RCP)
-from pipeline_sim.errors import UserError
 
 # its events, in the order of the kernel's event vector, and what each counts
 EVENT_MEANINGS = {
@@ -307,8 +306,7 @@ class Shading:
         self.conservative = conservative
         self.cached = mode == "cache" and not conservative
         if self.cached and draw.n > MAX_CACHED_TRIANGLES:
-            raise UserError(f"the shading cache keys at most {MAX_CACHED_TRIANGLES:,} triangles and the pass draws "
-                            f"{draw.n:,}: set pass.shading_mode = \"per_sample\"")
+            raise ValueError(f"the shading cache keys at most {MAX_CACHED_TRIANGLES:,} triangles, not {draw.n:,}")
         ways = config.cache_ways
         nsets = config.cache_entries // ways
         self.tags = np.full((nsets, ways), -1, np.int64)
