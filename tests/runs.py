@@ -1,10 +1,11 @@
-"""What the application tests share: running a page's documented example, and a command line that must
-refuse its input in one line."""
+"""What the application tests share: running a page's documented example or a workload file, and a command
+line that must refuse its input in one line."""
 
 from __future__ import annotations
 
 import contextlib
 import io
+import json
 import re
 from pathlib import Path
 
@@ -22,6 +23,20 @@ def run_doc_example(page: str) -> tuple[dict, str]:
     with contextlib.redirect_stdout(printed):
         exec(compile(block, str(doc), "exec"), scope)
     return scope, printed.getvalue()
+
+
+def ran_file(tmp_path: Path, text: str) -> tuple[Path, dict]:
+    """Write a workload file of ``text`` and ``run`` it into a new folder: (the folder, its results.json, read as
+    strict JSON)."""
+    path = tmp_path / "workload.toml"
+    path.write_text(text)
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--out", str(out), "--quiet"]) == 0
+    return out, json.loads((out / "results.json").read_text(), parse_constant=_not_json)
+
+
+def _not_json(constant: str):
+    raise AssertionError(f"results.json holds {constant}, which strict JSON has not")
 
 
 def refused_file(tmp_path: Path, capsys, kind: str, text: str, *argv: str) -> str:

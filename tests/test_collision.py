@@ -18,7 +18,7 @@ from pipeline_sim.config import load_arch
 from pipeline_sim.render import run_pass
 from pipeline_sim.workload import load_workload
 from workloads.apps import collision as C
-from runs import refused_file
+from runs import ran_file, refused_file
 
 APP = "workloads/apps/collision"
 TIMES = np.linspace(0.0, 1.0, 201)
@@ -421,12 +421,8 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys, text, message):
 @pytest.mark.parametrize("views", ["pair", "scene"])
 def test_objects_whose_swept_boxes_never_meet_give_empty_sets(tmp_path, views):
     """No pair to test: the run still has one view (of every object), and every PCS is empty."""
-    path = tmp_path / "apart.toml"
-    path.write_text(f'kind = "collision"\nresolution = 8\nviews = "{views}"\n[[objects]]\nshape = "icosphere"\n'
-                    '[[objects]]\nshape = "icosphere"\nstart = [5.0, 0.0, 0.0]\n')
-    out = tmp_path / "run"
-    assert main(["run", str(path), "--out", str(out), "--quiet"]) == 0
-    results = json.loads((out / "results.json").read_text())
+    out, results = ran_file(tmp_path, f'kind = "collision"\nresolution = 8\nviews = "{views}"\n[[objects]]\n'
+                                    'shape = "icosphere"\n[[objects]]\nshape = "icosphere"\nstart = [5.0, 0.0, 0.0]\n')
     assert results["swept_box_pairs"] == 0
     assert all(row["pcs_size"] == 0 and row["passes"] == 0 for row in results["methods"].values())
     assert (out / "passes" / "scene.x").is_dir()

@@ -27,12 +27,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline_sim.cli import main
 from pipeline_sim.config import load_arch
 from pipeline_sim.render import run_pass
 from units.rop import lens_resolve
 from workloads.apps.multiview import Layout, Multiview, Settings, _screen_bounds, reference_view_images, rmse
-from runs import refused_file
+from runs import ran_file, refused_file
 
 ROOT = Path(__file__).resolve().parents[1]
 STEREO = dict(views=2, window=1.0, spacing=0.3)
@@ -171,11 +170,8 @@ def test_shader_execution_increase_over_one_view(line):
 
 
 def test_run_writes_every_view_side_by_side_and_anaglyph(tmp_path):
-    path = tmp_path / "mv.toml"
-    path.write_text('kind = "multiview"\nwidth = 24\nheight = 16\nviews = 3\nwindow = 2.0\nview_counts = []\n'
-                    'cache_sizes = []\nreference_spp = 4\n')
-    out = tmp_path / "out"
-    assert main(["run", str(path), "--out", str(out), "--quiet"]) == 0
+    out, _ = ran_file(tmp_path, 'kind = "multiview"\nwidth = 24\nheight = 16\nviews = 3\nwindow = 2.0\n'
+                              'view_counts = []\ncache_sizes = []\nreference_spp = 4\n')
     images = {p.stem: np.load(p) for p in (out / "images").glob("*.npy")}
     assert sorted(images) == ["anaglyph", "side_by_side", "view_0", "view_1", "view_2"]
     assert all((out / "images" / f"{name}.png").is_file() for name in images)

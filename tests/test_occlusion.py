@@ -13,19 +13,17 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from pipeline_sim.cli import main
 from pipeline_sim.config import pass_settings
 from pipeline_sim.draw import draw_from_clip
 from pipeline_sim.errors import UserError
 from pipeline_sim.render import RenderPass, run_pass
-from runs import refused_file
+from runs import ran_file, refused_file
 
 W, H = 16, 12
 
@@ -200,11 +198,7 @@ lens_boxes = [1, 2]
 
 
 def test_occlusion_workload_end_to_end(tmp_path):
-    path = tmp_path / "occ.toml"
-    path.write_text(SMALL)
-    out = tmp_path / "out"
-    assert main(["run", str(path), "--out", str(out), "--quiet"]) == 0
-    results = json.loads((out / "results.json").read_text(), parse_constant=lambda c: pytest.fail(c))
+    out, results = ran_file(tmp_path, SMALL)
     queries = results["queries"]
     assert len(queries) == 8 and results["wrongly_occluded"] == 0
     for q in queries:

@@ -14,7 +14,6 @@
 
 
 import dataclasses
-import json
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +25,7 @@ from pipeline_sim.cli import main
 from pipeline_sim.config import load_arch
 from pipeline_sim.render import run_passes
 from workloads.apps import shadows as S
-from runs import refused_file, run_doc_example
+from runs import ran_file, refused_file, run_doc_example
 
 
 
@@ -150,12 +149,8 @@ def test_percentage_closer_lookups_against_the_accumulation_buffer():
 
 def test_the_pipeline_accumulation_passes_match_the_five_d_pass(tmp_path):
     """The workload's own accumulation buffer (2K 2D passes through the pipeline), its results."""
-    path = tmp_path / "shadows.toml"
-    path.write_text('kind = "shadows"\nwidth = 20\nheight = 15\ntuples = 4\nshadow_map = 32\nreference_samples = 64\n'
-                    "study_tuples = [2]\nstudy_shadow_maps = [16]\n")
-    out = tmp_path / "out"
-    assert main(["run", str(path), "--out", str(out), "--quiet"]) == 0
-    r = json.loads((out / "results.json").read_text(), parse_constant=lambda c: pytest.fail(c))
+    out, r = ran_file(tmp_path, 'kind = "shadows"\nwidth = 20\nheight = 15\ntuples = 4\nshadow_map = 32\n'
+                                'reference_samples = 64\nstudy_tuples = [2]\nstudy_shadow_maps = [16]\n')
     assert r["passes"] == 2 and r["accumulation_passes"] == 8
     assert sorted(p.name for p in (out / "passes").iterdir()) == sorted(
         ["light", "camera", "study_light_k2_r16", "study_camera_k2_r16"]
