@@ -112,6 +112,9 @@ class Workload:
     #: A kind with a file schema: its file's settings as validated, with what a command changed
     #: (:meth:`from_settings`); :meth:`resolved` lists them and :attr:`digest` hashes them.
     settings_file: Any = None
+    #: Per image setting the kind's file has no key for, what its refusal says instead of the default
+    #: "set what it stands for in the file" (:meth:`from_settings`): why, and what to set.
+    image_refusals: ClassVar[dict[str, str]] = {}
 
     def __init__(self, path: Path, arch: ArchConfig) -> None:
         self.path = Path(path)
@@ -124,15 +127,21 @@ class Workload:
     def load(cls, path: Path, data: Any, arch: ArchConfig, image: dict[str, int]) -> "Workload":
         """Build the workload of file ``path`` (``data``: its parsed TOML, or the :attr:`file_schema`
         instance validated from it) on ``arch``. ``image``: image settings a command overrides (keys of
-        :data:`IMAGE_KEYS`, already checked); a kind that has no such setting refuses them with one line."""
-        raise NotImplementedError
+        :data:`IMAGE_KEYS`, already checked); a kind that has no such setting refuses them with one line.
+        By default, for a kind with a file schema: :meth:`from_settings`."""
+        if cls.file_schema is None:
+            raise NotImplementedError(f"kind {cls.kind}: a kind without a file schema reads its file in load()")
+        return cls.from_settings(path, data, arch, image)
 
     @classmethod
     def from_settings(cls, path: Path, data: Any, arch: ArchConfig, image: dict[str, Any]) -> "Workload":
         """The workload of a kind with a file schema whose image settings are keys of its file of the same
         names: ``data`` with ``image`` applied, kept as :attr:`settings_file`. An image setting its file
-        has no key for is refused in one line."""
+        has no key for is refused in one line (:attr:`image_refusals`)."""
         unknown = sorted(set(image) - {f.name for f in dataclasses.fields(data)})
+        for name in unknown:
+            if name in cls.image_refusals:
+                raise UserError(f"{path}: --{name}: a {cls.kind} workload {cls.image_refusals[name]}")
         if unknown:
             raise UserError(f"{path}: a {cls.kind} workload has no image setting {', '.join(unknown)}; set what "
                             "it stands for in the file")

@@ -258,3 +258,12 @@ def test_from_settings_applies_the_image_settings_its_file_has_and_refuses_other
         Kind.from_settings(Path("f.toml"), Settings(), load_arch(), {"width": 40, "spp": 16})
     assert str(e.value) == ("f.toml: a settings-test workload has no image setting width; set what it stands "
                             "for in the file")
+
+    class Advised(Kind):
+        image_refusals = {"width": "draws a fixed 8x8 image"}
+        file_schema = Settings
+
+    with pytest.raises(UserError) as e:
+        Advised.load(Path("f.toml"), Settings(), load_arch(), {"width": 40})
+    assert str(e.value) == "f.toml: --width: a settings-test workload draws a fixed 8x8 image"
+    assert Advised.load(Path("f.toml"), Settings(), load_arch(), {"seed": 3}).settings_file == Settings(seed=3)

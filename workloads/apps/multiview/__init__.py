@@ -278,12 +278,7 @@ class Multiview(Workload):
 
     file_schema = Settings
 
-    @classmethod
-    def load(cls, path, data: Settings, arch, image: dict[str, int]) -> "Multiview":
-        if "spp" in image:
-            raise UserError(f"{path}: --spp: a multiview file sets samples_per_view (its pass's spp follows "
-                            "from it and the views)")
-        return cls.from_settings(path, data, arch, image)
+    image_refusals = {"spp": "sets samples_per_view (its pass's spp follows from it and the views)"}
 
     def layout(self, views: int | None = None) -> Layout:
         s = self.settings_file

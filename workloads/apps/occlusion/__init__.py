@@ -106,10 +106,6 @@ class Occlusion(Workload):
 
     file_schema = Settings
 
-    @classmethod
-    def load(cls, path, data: Settings, arch, image: dict[str, int]) -> "Occlusion":
-        return cls.from_settings(path, data, arch, image)
-
     def configurations(self) -> list[tuple[int, int, int]]:
         """The (tile size, time slices, lens boxes) of the occlusion-rate table, the architecture's own
         first."""

@@ -630,10 +630,6 @@ class Sampling(Workload):
 
     file_schema = Settings
 
-    @classmethod
-    def load(cls, path, data: Settings, arch, image: dict[str, int]) -> "Sampling":
-        return cls.from_settings(path, data, arch, image)
-
     def check(self, variants=None, *, reference_spp=None) -> str:
         from pipeline_sim.sampling import check_spp
 

@@ -423,12 +423,7 @@ class Shadows(Workload):
 
     file_schema = Settings
 
-    @classmethod
-    def load(cls, path, data: Settings, arch, image: dict[str, int]) -> "Shadows":
-        if "spp" in image:
-            raise UserError(f"{path}: --spp: a shadows workload takes one camera sample per tuple; set "
-                            "`tuples` instead")
-        return cls.from_settings(path, data, arch, image)
+    image_refusals = {"spp": "takes one camera sample per tuple; set `tuples` instead"}
 
     def check(self, variants=None, *, reference_spp=None) -> str:
         for v in variants or [self]:
