@@ -599,7 +599,7 @@ def _positions(words, n_words, out):
     return np.int64(m)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _tile_major(width, height, row0, spp, tile_size, x, y, u, v, t, tup, ax, ay, tu, tv, tt, ttup, slot_lo, slot_hi,
                 stats):
     """The samples in the sample tester's two tile-major orders, one after the
@@ -684,7 +684,7 @@ def _tile_major(width, height, row0, spp, tile_size, x, y, u, v, t, tup, ax, ay,
     stats[5] = v_hi
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, noread_in,
                        lines, masks, tile_size, width, height, spp, sx, sy, su, sv, st, stup, slot_lo, slot_hi,
                        uv_range, xy_max, row0,
