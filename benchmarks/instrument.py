@@ -19,7 +19,9 @@ swap them for the duration of one call and restore them afterwards.
 * ``unit_timers()``: wall and main-thread CPU time of every unit's ``run``,
   the sample tester's numba kernel, the z-cull refresh, the waits for a
   screen region's samples (made on a background thread while the region
-  before is processed) and the resolves.
+  before is processed) and the resolves. These runs step every unit on the
+  main thread (``simulation.run_ahead = 0``): the split is of the work, not
+  of a critical path that the sample tester's run-ahead thread shortens.
 """
 
 from __future__ import annotations
@@ -77,7 +79,7 @@ class Script:
 
 @contextlib.contextmanager
 def recording(script: Script):
-    def simulate(stages, source_batches, queue_depth, capacities=None):
+    def simulate(stages, source_batches, queue_depth, capacities=None, run_ahead=0):
         script.stages = [(s.name, s.latency) for s in stages]
         script.n_source = len(source_batches)
         script.queue_depth = queue_depth
@@ -89,7 +91,7 @@ def recording(script: Script):
                 script.returns[_i].append((len(outs), cycles))
                 return outs, cycles
             s.step = step
-        res = _REAL_SIMULATE(stages, source_batches, queue_depth, capacities)
+        res = _REAL_SIMULATE(stages, source_batches, queue_depth, capacities, 0)  # (the order of one thread)
         script.frame_cycles = res.frame_cycles
         return res
 
@@ -111,7 +113,7 @@ def _empty_timing() -> TimingResult:
 def direct(order: list[int] | None):
     """Replace SimPy by a plain loop (replaying ``order``, or depth-first if None)."""
 
-    def simulate(stages, source_batches, queue_depth, capacities=None):
+    def simulate(stages, source_batches, queue_depth, capacities=None, run_ahead=0):
         n = len(stages)
         steps = [s.step for s in stages]
         if order is None:
@@ -231,9 +233,10 @@ def unit_timers(timers: Timers):
             return _make(*a, **k)
         stack.enter_context(patched(render, "make_samples", make_samples))
 
-        def simulate(stages, source_batches, queue_depth, capacities=None):
+        def simulate(stages, source_batches, queue_depth, capacities=None, run_ahead=0):
             for s in stages:
                 s.step = _timed(s.step, timers, "step:" + s.name)
-            return _timed(_REAL_SIMULATE, timers, "simulate")(stages, source_batches, queue_depth, capacities)
+            # every step on the main thread (the timers time one thread)
+            return _timed(_REAL_SIMULATE, timers, "simulate")(stages, source_batches, queue_depth, capacities, 0)
         stack.enter_context(patched(render, "simulate", simulate))
         yield

@@ -35,7 +35,7 @@ import tomli_w
 from pipeline_sim import schema
 from pipeline_sim.errors import UserError, read_input_text
 from pipeline_sim.pass_state import PassState
-from pipeline_sim.settings import (ACCURACY, COUNTERS, CYCLES, EFFECTS, FORBID, IMAGE, Flag, Rate,  # noqa: F401
+from pipeline_sim.settings import (ACCURACY, COUNTERS, CYCLES, EFFECTS, FORBID, IMAGE, SPEED, Flag, Rate,  # noqa: F401
                                    count, setting)
 from pipeline_sim.simulation import SimOptions
 

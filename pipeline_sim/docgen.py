@@ -39,6 +39,7 @@ EFFECT_MEANINGS = {
     "cycles": "the cost model only; they can still move the counters declared timing-dependent, z-cull's and "
               "those after it ([pipeline.md §4](pipeline.md#4-what-is-counted)), unless z-cull is refreshed in "
               "submission order, as `compare` does",
+    "speed": "only the simulator's wall time: images, counters and cycles stay identical",
 }
 
 

@@ -18,11 +18,21 @@ counters are declared timing-dependent (docs/pipeline.md §4).
 ``run_in_order`` takes timing out of them: it runs the functional models
 first, in submission order, and hands ``simulate`` stages that replay what
 each step returned.
+
+A stage whose step depends only on its batch (``Stage.ahead``; the sample
+tester) may run its steps before the simulation reaches them: ``simulate``
+starts the step of each batch that enters the stage's FIFO on a second
+thread, in FIFO order and at most ``run_ahead`` batches ahead, and the stage
+takes the result when it gets to the batch. The numba kernels release the
+interpreter lock, so one unit's kernel runs beside the others' and the SimPy
+layer on another core. The stage steps the same batches in the same order
+either way: images, counters and cycles do not change.
 """
 
 from __future__ import annotations
 
 from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -58,6 +68,7 @@ class Fifo:
         self.items: deque = deque()
         self._waiting_get: simpy.Event | None = None  # the consumer, waiting for an item
         self._waiting_put: tuple[simpy.Event, Any, int] | None = None  # the producer, waiting for room
+        self.on_admit: Callable[[], None] | None = None  # called after each item goes in
 
     @property
     def unit(self) -> str:
@@ -89,6 +100,8 @@ class Fifo:
     def _admit(self, item: Any, w: int) -> None:
         self.level += w
         self.items.append((item, w))
+        if self.on_admit is not None:
+            self.on_admit()
         if self._waiting_get is not None:
             ev, self._waiting_get = self._waiting_get, None
             ev.succeed()
@@ -142,6 +155,9 @@ class Stage:
     name: str
     step: Callable[[Any], tuple[list[Any], float]]  # batch -> (output batches, cycles)
     latency: int
+    # whether the step of a batch in the stage's FIFO may start now, on the run-ahead thread (None: never):
+    # true only when the step then depends on nothing but the batch and the steps before it
+    ahead: Callable[[Any], bool] | None = None
     busy: float = 0.0
     starved: float = 0.0
     blocked: float = 0.0
@@ -168,12 +184,69 @@ def _put(env: simpy.Environment, stage: Stage, out: Channel, item: Any):
     return t2
 
 
-def _stage_process(env: simpy.Environment, stage: Stage, inp: Channel, out: Channel | None):
+class _RunAhead:
+    """The steps of one stage (``Stage.ahead``) started early on the run-ahead thread.
+
+    The batches are numbered in the order they enter the stage's FIFO, which
+    is the order the stage steps them. Steps start in that order, at most
+    ``depth`` not yet taken up by the stage, each only when ``stage.ahead``
+    allows it; the first batch it does not allow stops the run-ahead until
+    the stage has stepped that batch itself. So every step runs after all
+    the steps before it and before all those after it, one at a time, as
+    without run-ahead.
+    """
+
+    def __init__(self, stage: Stage, fifo: Fifo, pool: ThreadPoolExecutor, depth: int):
+        self.stage = stage
+        self.fifo = fifo
+        self.pool = pool
+        self.depth = depth
+        self.admitted = 0  # items that have entered the FIFO (the end marker included)
+        self.stepped = 0  # batches the stage has stepped
+        self.frontier = 0  # the first batch neither started nor stepped
+        self.started: dict[int, Future] = {}  # by batch number
+        fifo.on_admit = self.admit
+
+    def admit(self) -> None:
+        self.admitted += 1
+        self.top_up()
+
+    def top_up(self) -> None:
+        """Start the steps of the next batches that may start."""
+        items = self.fifo.items
+        head = self.admitted - len(items)  # the number of the batch at the FIFO's head
+        while len(self.started) < self.depth:
+            k = self.frontier - head
+            if k < 0 or k >= len(items):  # the stage holds it (taken, not yet stepped), or none is there
+                return
+            item = items[k][0]
+            if item is END or not self.stage.ahead(item[1]):
+                return
+            self.started[self.frontier] = self.pool.submit(self.stage.step, item[1])
+            self.frontier += 1
+
+    def step(self, payload: Any) -> tuple[list[Any], float]:
+        """The step of ``payload``, the next batch: its result when it was started, else run now; then
+        start more."""
+        future = self.started.pop(self.stepped, None)
+        if future is not None:
+            result = future.result()
+        else:
+            result = self.stage.step(payload)
+            self.frontier = self.stepped + 1
+        self.stepped += 1
+        self.top_up()
+        return result
+
+
+def _stage_process(env: simpy.Environment, stage: Stage, inp: Channel, out: Channel | None,
+                   ahead: _RunAhead | None = None):
     """Get a batch, wait until it is ready, step the unit, stay busy its cycles, put its outputs.
 
     ``env.now`` is read once after each yield (it only moves across yields).
     """
     fifo = inp.store
+    step = stage.step if ahead is None else ahead.step
     trace = stage.trace
     while True:
         t0 = env.now
@@ -198,7 +271,7 @@ def _stage_process(env: simpy.Environment, stage: Stage, inp: Channel, out: Chan
         stage.starved += now - t0
         if now > t0:
             trace.append((t0, now, "starved"))
-        outputs, cycles = stage.step(payload)
+        outputs, cycles = step(payload)
         stage.batches += 1
         if cycles > 0:
             yield env.timeout(cycles)
@@ -231,12 +304,14 @@ class TimingResult:
 
 
 def simulate(stages: list[Stage], source_batches: list[Any], queue_depth: int,
-             capacities: list[int] | None = None) -> TimingResult:
+             capacities: list[int] | None = None, run_ahead: int = 0) -> TimingResult:
     """Run the stages in order, fed with ``source_batches``, and time them.
 
     Each channel (the input of each stage) holds ``queue_depth`` batches, or,
     with ``capacities``, that many records (one number per stage input); its
-    capacity and occupancy are reported in that unit.
+    capacity and occupancy are reported in that unit. ``run_ahead``: how many
+    batches a stage with ``ahead`` may have started on the run-ahead thread
+    (0: none, every step runs when the simulation reaches it).
     """
     env = simpy.Environment()
     names = ["input"] + [f"{a.name}->{b.name}" for a, b in zip(stages, stages[1:])]
@@ -245,10 +320,17 @@ def simulate(stages: list[Stage], source_batches: list[Any], queue_depth: int,
     else:
         channels = [Channel(n, Fifo(env, cap, by_records=True)) for n, cap in zip(names, capacities)]
     env.process(_source_process(env, source_batches, channels[0]))
+    early = [s.ahead is not None for s in stages]
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="run-ahead") if run_ahead and any(early) else None
     for i, stage in enumerate(stages):
         out = channels[i + 1] if i + 1 < len(channels) else None
-        env.process(_stage_process(env, stage, channels[i], out))
-    env.run()
+        ahead = _RunAhead(stage, channels[i].store, pool, run_ahead) if pool is not None and early[i] else None
+        env.process(_stage_process(env, stage, channels[i], out, ahead))
+    try:
+        env.run()
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
     frame = float(env.now)
     for ch in channels:
         ch.record(frame)

@@ -372,7 +372,10 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         bypassed.add("zcull")
     if conservative:
         bypassed.add("sample_tester")
-    stages = [Stage(name, fn, lat) for name, fn, lat in stage_defs if name not in bypassed]
+    # the sample tester's step depends only on its batch and the samples of the batch's region (which it
+    # holds once its cursor is there): its batches of that region may be tested ahead (pipeline.py)
+    ahead = {"sample_tester": lambda batch: batch.region == tester_at.region}
+    stages = [Stage(name, fn, lat, ahead=ahead.get(name)) for name, fn, lat in stage_defs if name not in bypassed]
     ids = np.arange(draw.n, dtype=np.int64)
     if presetup:
         # binning needs each triangle's screen bounds: the functional setup
@@ -400,7 +403,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         capacities = [pcfg.queue_depth * per_kind[INPUT_KIND[st.name]] for st in stages]
         if ordered:
             stages = run_in_order(stages, tri_batches, after_triangle_batch)
-        timing = simulate(stages, tri_batches, pcfg.queue_depth, capacities)
+        timing = simulate(stages, tri_batches, pcfg.queue_depth, capacities, run_ahead=sim.run_ahead)
         image = rop.resolve()
         depth = rop.depth_samples()
     finally:

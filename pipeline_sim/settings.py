@@ -21,9 +21,9 @@ from typing import Annotated, Any
 
 from pydantic import ConfigDict, Field, Strict
 
-IMAGE, ACCURACY, COUNTERS, CYCLES = "image", "accuracy", "counters", "cycles"
-#: What a setting can change, from most to least.
-EFFECTS = (IMAGE, ACCURACY, COUNTERS, CYCLES)
+IMAGE, ACCURACY, COUNTERS, CYCLES, SPEED = "image", "accuracy", "counters", "cycles", "speed"
+#: What a setting can change, from most to least (``speed``: only how fast the simulator runs).
+EFFECTS = (IMAGE, ACCURACY, COUNTERS, CYCLES, SPEED)
 
 # The cost model's range: a rate or a cost from 1e-6 to 1e9 keeps every cycle count of a frame (at most
 # about 1e10 items, each costing at most 1e9 cycles or 1e6 per unit of rate) far inside a float's exact

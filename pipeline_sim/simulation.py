@@ -1,8 +1,9 @@
 """Simulation options: how the simulator runs a pass, neither the machine nor the work.
 
 Batch sizes set the granularity of the timing model (records per SimPy
-batch between units) and ``region_samples`` how much of a frame is held at
-once; none of them changes the image. A scene file sets them in its
+batch between units), ``region_samples`` how much of a frame is held at
+once and ``run_ahead`` how far the sample tester may work ahead on a second
+thread; none of them changes the image. A scene file sets them in its
 ``[simulation]`` table, ``--set simulation.KEY=VALUE`` on top of that.
 """
 
@@ -12,7 +13,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
-from pipeline_sim.settings import FORBID, COUNTERS, CYCLES, count, setting
+from pipeline_sim.settings import FORBID, COUNTERS, CYCLES, SPEED, count, setting
 
 
 @dataclass(frozen=True)
@@ -28,6 +29,9 @@ class SimOptions:
         1 << 22, COUNTERS, "a frame of more samples is rendered in screen regions (bands of whole coarse-tile "
         "rows) of at most this many samples, to bound memory; 0: one region. Same image at every size; z-cull "
         "counters and cycles follow the order")
+    run_ahead: count(0, 64) = setting(
+        2, SPEED, "batches the sample tester may test ahead of the simulation, on a second thread, while the "
+        "other units run (0: every unit steps on one thread)")
 
     def replace(self, **changes: Any) -> "SimOptions":
         return dataclasses.replace(self, **changes)

@@ -364,7 +364,8 @@ def _alternative(path: str, value):
     """A valid value other than the default, for every setting."""
     special = {"pass.mode": "conservative", "pass.time_intervals": "exact", "pass.sample_pattern": "sobol",
                "pass.interleave_tuples": 32,
-               "simulation.region_samples": 4096, "tile_test.algorithm": "bbox", "tile_test.edge_solver": "quadratic",
+               "simulation.region_samples": 4096, "simulation.run_ahead": 0, "tile_test.algorithm": "bbox",
+               "tile_test.edge_solver": "quadratic",
                "tile_test.gamma": "tile", "pass.clip.t_hi": 0.5, "pass.clip.t_lo": 0.5,
                "pass.clip.u_lo": 0.0, "pass.clip.u_hi": 0.0, "pass.clip.v_lo": 0.0,
                "pass.clip.v_hi": 0.0, "tile_traverser.tile_size": 16, "tile_traverser.coarse_factor": 2,
@@ -421,10 +422,11 @@ def _override(path, value):
 
 
 def test_settings_declared_not_to_change_the_image_do_not(blurred_scene):
-    """Measured, not assumed: every `counters` and `cycles` setting (hardware or simulation option), moved
-    off its default, leaves the image bit-identical; with z-cull (the one path from timing back to the work)
-    off, every `cycles` setting leaves every counter identical too."""
-    from pipeline_sim.config import COUNTERS, CYCLES, setting_effects
+    """Measured, not assumed: every `counters`, `cycles` and `speed` setting (hardware or simulation option),
+    moved off its default, leaves the image bit-identical; with z-cull (the one path from timing back to the
+    work) off, every `cycles` setting leaves every counter identical too, and a `speed` setting leaves every
+    counter and cycle identical even with z-cull on."""
+    from pipeline_sim.config import COUNTERS, CYCLES, SPEED, setting_effects
     from pipeline_sim.render import render_scene
 
     reference = render_scene(blurred_scene, **pass_settings([]))
@@ -432,11 +434,14 @@ def test_settings_declared_not_to_change_the_image_do_not(blurred_scene):
     values = _all_paths()
     checked = 0
     for path, effect in setting_effects().items():
-        if effect not in (COUNTERS, CYCLES):
+        if effect not in (COUNTERS, CYCLES, SPEED):
             continue
         change = _override(path, _alternative(path, values[path]))
-        image = render_scene(blurred_scene, **pass_settings([change])).image
-        assert np.array_equal(image, reference.image), path
+        result = render_scene(blurred_scene, **pass_settings([change]))
+        assert np.array_equal(result.image, reference.image), path
+        if effect == SPEED:
+            pd.testing.assert_frame_equal(result.counters, reference.counters, obj=path)
+            pd.testing.assert_frame_equal(result.timing.units, reference.timing.units, obj=path)
         if effect == CYCLES:
             counters = render_scene(blurred_scene, **pass_settings(["zcull.enabled=false", change])).counters
             pd.testing.assert_frame_equal(counters, reference_counters, obj=path)

@@ -20,7 +20,11 @@ frame - P_j(n); so busy + starved + blocked = frame for every stage.
 
 from __future__ import annotations
 
+import threading
+import time
+
 import numpy as np
+import pandas as pd
 import pytest
 
 from pipeline_sim.config import load_arch, pass_settings
@@ -320,6 +324,65 @@ def test_random_stalls_outputs_complete_and_in_order(depth):
         assert res.frame_cycles >= max(sum(cost_a.values()), sum(cost_c.values()))
 
 
+@pytest.mark.parametrize("depth", [1, 2, 5])
+def test_run_ahead_steps_in_order_one_at_a_time_and_times_the_same(depth):
+    """A stage with ``ahead`` steps its batches on the run-ahead thread, ahead of the simulation: each
+    step still starts after the one before it has ended (in FIFO order, never two at once), a batch
+    ``ahead`` refuses is stepped by the stage itself, and the timing, counts and order of everything are
+    those of the same stages without run-ahead."""
+    rng = np.random.default_rng(100 + depth)
+    on_worker = 0
+    for trial in range(12):
+        n = int(rng.integers(1, 30))
+        items = list(range(n))
+        cost = rng.integers(0, 8, (3, n)).astype(float)
+        refuse = set(rng.choice(n, min(n, int(rng.integers(0, 4))), replace=False).tolist())
+        pause = rng.uniform(0, 2e-4, n)  # sleeps that let the threads interleave
+        lats = rng.integers(0, 6, 3)
+
+        def stages(log, ahead):
+            def a(it):
+                return [it], cost[0][it]
+
+            def b(it):
+                log.append(("start", it, threading.current_thread() is threading.main_thread()))
+                time.sleep(pause[it])
+                log.append(("end", it, None))
+                return [it, it], cost[1][it]
+
+            def c(it):
+                log.append(("c", it, None))
+                return [], cost[2][it]
+
+            return [Stage("a", a, int(lats[0])), Stage("b", b, int(lats[1]), ahead=ahead),
+                    Stage("c", c, int(lats[2]))]
+
+        plain_log, log = [], []
+        plain = simulate(stages(plain_log, None), items, 2)
+        res = simulate(stages(log, lambda it: it not in refuse), items, 2, run_ahead=depth)
+        b_log = [e for e in log if e[0] != "c"]
+        assert [(e[0], e[1]) for e in b_log] == [(k, it) for it in items for k in ("start", "end")]
+        assert all(on_main for kind, it, on_main in b_log if kind == "start" and it in refuse)
+        on_worker += sum(not on_main for kind, _, on_main in b_log if kind == "start")
+        assert [e for e in log if e[0] == "c"] == [e for e in plain_log if e[0] == "c"]
+        assert res.frame_cycles == plain.frame_cycles
+        pd.testing.assert_frame_equal(res.units, plain.units)
+        pd.testing.assert_frame_equal(res.queues, plain.queues)
+        assert res.traces == plain.traces
+    assert on_worker > 50  # the run-ahead thread did step batches
+
+
+def test_run_ahead_passes_an_exception_on():
+    def b(it):
+        if it == 3:
+            raise ValueError("bad batch 3")
+        return [it], 1.0
+
+    stages = [Stage("a", lambda it: ([it], 1.0), 0), Stage("b", b, 0, ahead=lambda it: True)]
+    with pytest.raises(ValueError, match="bad batch 3"):
+        simulate(stages, list(range(6)), 2, run_ahead=2)
+
+
 def test_cycles_for_and_chunks():
     assert cycles_for(0, 2.0, 1) == 0
     assert cycles_for(1, 16.0, 2) == 1 / 32  # streamed: no partial cycle per batch
@@ -501,3 +564,27 @@ def test_frame_cycles_converge_as_batches_shrink(draw):
     for r in results.values():
         np.testing.assert_array_equal(r.image, results[4].image)
         assert r.counters.equals(results[4].counters)
+
+
+@pytest.mark.parametrize("regions", [0, 2048])
+def test_run_ahead_changes_nothing_but_the_thread(draw, regions):
+    """The sample tester stepped ahead on a second thread (the default, at depths 1 and 8) or on the main
+    thread: the same image, every counter (the timing-dependent ones too), cycles and timing, in one screen
+    region or in several (the tester does not run ahead into the next region)."""
+    def result(run_ahead):
+        settings = [f"simulation.run_ahead={run_ahead}", f"simulation.region_samples={regions}",
+                    "simulation.tiles_per_batch=16"]
+        return run_pass(RenderPass(draw=draw, **pass_settings(settings), spp=SPP))
+
+    one_thread = result(0)
+    assert one_thread.regions.count == (1 if regions == 0 else 3)
+    assert one_thread.timing.units.set_index("unit").loc["sample_tester"].batches > 40
+    for run_ahead in (1, 2, 8):
+        res = result(run_ahead)
+        np.testing.assert_array_equal(res.image, one_thread.image)
+        np.testing.assert_array_equal(res.depth, one_thread.depth)
+        pd.testing.assert_frame_equal(res.counters, one_thread.counters)
+        pd.testing.assert_frame_equal(res.timing.units, one_thread.timing.units)
+        pd.testing.assert_frame_equal(res.timing.queues, one_thread.timing.queues)
+        assert res.timing.traces == one_thread.timing.traces
+        assert res.region_samples_made == one_thread.region_samples_made
