@@ -84,7 +84,7 @@ def blend_sample(buf, k, color, i, c0, modes):
             buf[k, c] = max(buf[k, c], x)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def rop_kernel(pix, sidx, z, tri, color, noread, spp, pix0, func, depth_write, depth_buf, tri_draw, by_draw, query,
                passed, prior, buf, c0, copy, ops, events, traffic):
     """Depth test each sample in order (docs/pipeline.md §2.7); the buffers start at pixel ``pix0``.
@@ -155,7 +155,7 @@ def blend_kernel(pix, sidx, tri, color, passed, spp, pix0, tri_draw, by_draw, bu
     traffic[1] += nbytes
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def resolve_kernel(color_buf, spp, out):
     """Box filter (docs/pipeline.md §2.7): each pixel's mean over its ``spp`` samples, summed in float64 in
     sample order. Four channels at a time in one pass, as four independent sums (not one waiting on the

@@ -81,7 +81,7 @@ def cell_keys(tri, b0, b1, b2, ref, rate, keys):
     return n_in_front
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def cache_kernel(tri, b0, b1, b2, ref, rate, tags, stamps, entry_req, clock, replacement,
                  keys, sample_src, req_entry, req_tri, req_l, req_sample, ops, events):
     """Shading-cache lookups in sample order (Nilsson12 §2, §8; Ragan-Kelley et al. 2011).
@@ -207,7 +207,7 @@ def cache_kernel(tri, b0, b1, b2, ref, rate, tags, stamps, entry_req, clock, rep
     return nreq, clock
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def store_requests(req_entry, shaded, entry_color, entry_req):
     """Store each request's color in its cache entry (-1: uncached, no grid
     cell); requests in order, so an entry refilled within the batch keeps its
@@ -220,7 +220,7 @@ def store_requests(req_entry, shaded, entry_color, entry_req):
             entry_req[e] = -1
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def deliver_colors(sample_src, palette, color):
     """Each sample's color: row ``sample_src[i]`` of ``palette`` (see ``cache_kernel``)."""
     for i in range(sample_src.shape[0]):
@@ -229,7 +229,7 @@ def deliver_colors(sample_src, palette, color):
             color[i, c] = palette[r, c]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def interpolate_kernel(req_tri, req_l, req_t, req_u, req_v, req_x, req_y, req_depth,
                        pos, nrm, color, material, object_id, inputs, ops):
     """Perspective-correct attribute interpolation for shading requests (Munkberg11 §8 'interpolation setup')."""

@@ -74,7 +74,7 @@ def tile_test_kernel_for(algorithm: int) -> Callable:
 
 
 def _compile_kernel(algorithm: int) -> Callable:
-    @nb.njit(cache=True)
+    @nb.njit(cache=True, nogil=True)
     def tile_test_kernel(tri_ids, tile_x, tile_y, tile_size, width, height, edge_test, quadratic, gamma_per_tile,
                          lens_bounds, clips, p0, dp, l0, dl, t_span, flags, edge_f, edge_h, edge_gamma, edge_g, edge_fg,
                          edge_abs, plane_n, plane_d, hull, hull_n, hull_off, tuples, depth_c1, depth_c0,

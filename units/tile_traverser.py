@@ -30,7 +30,7 @@ EV_COARSE, EV_COARSE_REJ, EV_EMIT = range(len(EVENTS))
 TIMING_DEPENDENT: tuple[str, ...] = ()
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def traverse_kernel(ids, bounds, t_span, p0, dp, l0, dl, tile_size, coarse_factor, coarse_test, width, height,
                     row_lo, row_hi, out_tri, out_tx, out_ty, ops, events):
     """Emit (triangle, tile) records for ``ids`` within rows ``[row_lo, row_hi)``

@@ -131,7 +131,7 @@ def _det(x0, y0, w0, x1, y1, w1, x2, y2, w2):
     return x0 * cx + y0 * cy + w0 * cw
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def setup_kernel(ids, q, r, lens_x, lens_y, width, height, tile_size, backface_culling, keep_degenerate, view, table,
                  depth_planes, status, ops, events):
     """Triangle setup for the triangles ``ids`` (docs/pipeline.md §2.1; Munkberg11 §3-4, Gribel10 eq. 3-5).

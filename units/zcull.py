@@ -58,7 +58,7 @@ def _box_range(lo, hi, n, offset, scale):
     return max(0, min(n - 1, a)), max(0, min(n - 1, b))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def zcull_kernel(tri, tx, ty, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, tiles_x,
                  nt, nl, zmax, zmin, func, keep, noread, ops, events):
     """Cull records whose z^ lies behind zmax in every touched box (Nilsson12 §3)."""
@@ -152,7 +152,7 @@ def _box_max(depth, order, k0, k1):
     return top
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st, su, sv, depth, zmax, exact, slot,
                    box_of, order, start, pmax, dirty, work):
     """Set zmax of every box of the tiles touched by ``pix`` to the largest depth of its samples
