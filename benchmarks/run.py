@@ -129,8 +129,8 @@ unless said otherwise:
    Writes ``convergence.csv``.
 
 12. ("per_sample" section) Cost per sample: the default scene at 256 spp,
-   in nanoseconds per sample end to end, as shipped (the sample tester's
-   run-ahead thread) and on one thread, timed alternately; then instrumented
+   in nanoseconds per sample end to end, as shipped (the tile test and the
+   sample tester on the run-ahead thread) and on one thread, timed alternately; then instrumented
    as in 2 (on one thread), per part
    (tile test, z-cull, tester, shading, ROP, the z-cull refresh, sample
    generation: in wall time the main thread's waits for a region's samples,
@@ -783,8 +783,8 @@ def report(results: dict) -> tuple[str, list[dict]]:
         out.append(f"12. Cost per sample: the default scene at {ps['width']}x{ps['height']}, {ps['spp']} spp "
                    f"({ps['samples']:,} samples; issue 19 goal: under 50 ns a sample)")
         out.append(f"   {ps['ns_per_sample']:.1f} ns a sample wall ({ps['ns_per_sample_cpu']:.1f} CPU), "
-                   f"{ps['run_ahead_s']:.2f} s a pass, as shipped (the sample tester up to {ps['run_ahead_depth']} "
-                   f"batches ahead on a second thread); {ps['one_thread_ns_per_sample']:.1f} ns "
+                   f"{ps['run_ahead_s']:.2f} s a pass, as shipped (the tile test and the sample tester up to "
+                   f"{ps['run_ahead_depth']} batches ahead on a second thread); {ps['one_thread_ns_per_sample']:.1f} ns "
                    f"({ps['one_thread_s']:.2f} s) on one thread (simulation.run_ahead = 0); medians of {n_plain} "
                    "plain runs each, alternately")
         out.append(f"   where the work goes, one thread, median of {results['config']['instrumented']} instrumented "

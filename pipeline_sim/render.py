@@ -372,9 +372,10 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         bypassed.add("zcull")
     if conservative:
         bypassed.add("sample_tester")
-    # the sample tester's step depends only on its batch and the samples of the batch's region (which it
-    # holds once its cursor is there): its batches of that region may be tested ahead (pipeline.py)
-    ahead = {"sample_tester": lambda batch: batch.region == tester_at.region}
+    # steps that depend only on their batch may run ahead of the simulation (pipeline.py): the tile test's
+    # (its batch's clip planes are set in its step), and the sample tester's in the region whose samples it
+    # holds (its cursor moves to the next region when the simulation brings it that region's first batch)
+    ahead = {"tile_test": lambda batch: True, "sample_tester": lambda batch: batch.region == tester_at.region}
     stages = [Stage(name, fn, lat, ahead=ahead.get(name)) for name, fn, lat in stage_defs if name not in bypassed]
     ids = np.arange(draw.n, dtype=np.int64)
     if presetup:
