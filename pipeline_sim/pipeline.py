@@ -20,10 +20,10 @@ first, in submission order, and hands ``simulate`` stages that replay what
 each step returned.
 
 A stage whose step depends only on its batch (``Stage.ahead``; the tile test
-and the sample tester) may run its steps before the simulation reaches them: ``simulate``
-starts the step of each batch that enters the stage's FIFO on a second
-thread, in FIFO order and at most ``run_ahead`` batches ahead, and the stage
-takes the result when it gets to the batch. The numba kernels release the
+and the sample tester) may run its steps before the simulation reaches
+them: ``simulate`` starts the step of each batch that enters the stage's
+FIFO on a second thread, in FIFO order and at most ``run_ahead`` batches
+ahead, and the stage takes the result when it gets to the batch. The numba kernels release the
 interpreter lock, so one unit's kernel runs beside the others' and the SimPy
 layer on another core. The stage steps the same batches in the same order
 either way: images, counters and cycles do not change.
