@@ -47,8 +47,8 @@ _WARM = False
 WORKER_UNITS = ("sample_tester", "zcull_refresh")
 #: the units this process compiles meanwhile
 PARENT_UNITS = ("sampling", "triangle_setup", "tile_traverser", "tile_test", "zcull", "shading", "rop")
-# what a worker runs: the worker group's warmers (the package root is put on its PYTHONPATH)
-_WORKER_CODE = "from pipeline_sim.jit import worker_main; worker_main()"
+# what a worker runs: the worker group's warmers, imported from the directory given as its argument
+_WORKER_CODE = "import sys; sys.path.insert(0, sys.argv[1]); from pipeline_sim.jit import worker_main; worker_main()"
 
 
 def warm_up() -> float:
@@ -143,18 +143,17 @@ class Worker:
 
 
 def worker_command() -> list[str]:
-    """The worker's command line: this interpreter, running ``worker_main``."""
-    return [sys.executable, "-c", _WORKER_CODE]
+    """The worker's command line: this interpreter, running ``worker_main`` of this very package (numba's
+    cache is keyed by each kernel's source file): the directory holding ``pipeline_sim`` and ``units`` goes
+    first on its path, before its working directory."""
+    return [sys.executable, "-c", _WORKER_CODE, str(Path(__file__).resolve().parent.parent)]
 
 
 def worker_env() -> dict[str, str]:
-    """This process's environment, with the directory holding ``pipeline_sim`` and ``units`` first on the
-    path (numba's cache is keyed by each kernel's source file) and numba's cache directory as set here."""
+    """This process's environment, with numba's cache directory as set here."""
     import numba
 
     env = dict(os.environ)
-    root = str(Path(__file__).resolve().parent.parent)
-    env["PYTHONPATH"] = os.pathsep.join([root] + [p for p in [env.get("PYTHONPATH")] if p])
     if numba.config.CACHE_DIR:
         env["NUMBA_CACHE_DIR"] = numba.config.CACHE_DIR
     return env

@@ -103,13 +103,14 @@ def test_cached_warm_up_compiles_nothing_and_starts_no_worker(cold_groups):
     assert compiled == []
 
 
-def _failing_warm_up(cache: Path, command: list[str]) -> subprocess.CompletedProcess:
-    """warm_up on an empty cache, cut down to two units (the ROP's kernels start the worker, z-cull's refresh
-    is the worker's), with ``command`` as the worker."""
+def _cut_down_warm_up(cache: Path, command: list[str] | None) -> subprocess.CompletedProcess:
+    """warm_up on an empty cache, its parent's group cut down to the ROP (whose kernels start the worker)
+    and its warm pass to the worker's group and the ROP, with ``command`` as the worker (None: the real one)."""
     code = RECORDER + textwrap.dedent(f"""
         jit.PARENT_UNITS = ("rop",)
-        jit.warm_pass = lambda: jit.warm_units(("zcull_refresh", "rop"))
-        jit.worker_command = lambda: {command!r}
+        jit.warm_pass = lambda: jit.warm_units(jit.WORKER_UNITS + ("rop",))
+        if {command!r} is not None:
+            jit.worker_command = lambda: {command!r}
         started = []
         start = jit.Worker.start
         def recording_start(self):  # (called at every compile: it starts the worker at the first)
@@ -130,11 +131,20 @@ def _failing_warm_up(cache: Path, command: list[str]) -> subprocess.CompletedPro
 @pytest.mark.parametrize("command, starts", [([str(ROOT / "no-such-python")], False),
                                              ([sys.executable, "-c", "raise SystemExit('worker failed')"], True)])
 def test_warm_up_compiles_itself_when_the_worker_cannot(tmp_path, command, starts):
-    res = _failing_warm_up(tmp_path, command)
+    res = _cut_down_warm_up(tmp_path, command)
     assert res.returncode == 0 and res.stderr == ""
     started, compiled = (json.loads(line) for line in res.stdout.splitlines()[-2:])
     assert started == [starts]  # started once, at the first compile
     assert "units.zcull.refresh_kernel" in _kernels([tuple(c) for c in compiled], "warm_up")
+
+
+def test_worker_fills_the_parents_cache(tmp_path):
+    # the real worker: what it compiles, this process then loads (it compiles the ROP's kernels only)
+    res = _cut_down_warm_up(tmp_path, None)
+    assert res.returncode == 0 and res.stderr == ""
+    started, compiled = (json.loads(line) for line in res.stdout.splitlines()[-2:])
+    assert started == [True]
+    assert _kernels([tuple(c) for c in compiled], "warm_up") == {"units.rop.rop_kernel", "units.rop.resolve_kernel"}
 
 
 def test_interrupted_warm_up_kills_the_worker(monkeypatch):
@@ -167,8 +177,14 @@ def test_worker_exits_with_its_parent():
     assert child.wait(timeout=120) == 1
 
 
-def test_worker_env_points_at_this_package_and_cache(monkeypatch, tmp_path):
+def test_worker_runs_this_package_with_this_cache(monkeypatch, tmp_path):
+    # from another directory holding another pipeline_sim, the worker still imports this one
+    (tmp_path / "pipeline_sim").mkdir()
+    (tmp_path / "pipeline_sim" / "__init__.py").write_text("raise ImportError('the wrong package')")
+    command = jit.worker_command()
+    probe = command[2].replace("from pipeline_sim.jit import worker_main; worker_main()",
+                               "import pipeline_sim; print(pipeline_sim.__file__)")
+    res = subprocess.run([*command[:2], probe, *command[3:]], capture_output=True, text=True, cwd=tmp_path)
+    assert Path(res.stdout.strip()) == ROOT / "pipeline_sim" / "__init__.py", res.stderr
     monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
-    env = jit.worker_env()
-    assert env["PYTHONPATH"].split(os.pathsep)[0] == str(ROOT)
-    assert env["NUMBA_CACHE_DIR"] == str(tmp_path)
+    assert jit.worker_env()["NUMBA_CACHE_DIR"] == str(tmp_path)
