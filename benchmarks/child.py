@@ -15,6 +15,8 @@ import resource
 import sys
 import time
 
+from pipeline_sim.memory import keep_freed_memory
+
 
 def _maxrss_mb() -> float:
     # Linux reports ru_maxrss in kilobytes
@@ -114,6 +116,7 @@ def scaling_point(spec: dict) -> dict:
 
 
 def main(argv: list[str]) -> None:
+    keep_freed_memory()  # as the command line does
     if argv[0] == "compile":
         out = compile_point()
     elif argv[0] == "point":

@@ -166,6 +166,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline_sim.memory import keep_freed_memory
+
 ROOT = Path(__file__).resolve().parent.parent
 
 FULL = {
@@ -832,6 +834,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frame-triangles", metavar="N[,N]",
                     help="triangle counts of the frame section, tried in order (default 250000,1000000; quick 4000)")
     args = ap.parse_args(argv)
+    keep_freed_memory()  # as the command line does
     cfg = json.loads(json.dumps(QUICK if args.quick else FULL))  # a copy
     sections = list(SECTIONS)
     if args.only:

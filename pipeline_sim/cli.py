@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 from pipeline_sim.errors import OutputError, UserError
+from pipeline_sim.memory import keep_freed_memory
 
 EXIT_USER_ERROR = 2
 
@@ -374,6 +375,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    keep_freed_memory()
     try:
         return args.func(args)
     except UserError as exc:

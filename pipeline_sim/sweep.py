@@ -856,7 +856,10 @@ def _run_local(spec_dict: dict, pending: list[dict], out: Path, workers: int,
     from concurrent.futures import ProcessPoolExecutor, as_completed
     from concurrent.futures.process import BrokenProcessPool
 
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+    from pipeline_sim.memory import keep_freed_memory
+
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=keep_freed_memory)
     try:
         futures = {pool.submit(run_point, spec_dict, p, str(out)): p for p in pending}
         for fut in as_completed(futures):

@@ -269,6 +269,7 @@ class Rop:
             self.image[:] = self.clears[0]
         self.frame_depth = (np.full(width * height * spp, clear_depth, np.float32)
                             if keep_depth and not self.one_region else None)
+        self._store = None  # (depth, the targets' buffers) of the largest region so far
         self._open(rows, samples)
 
     @property
@@ -282,13 +283,18 @@ class Rop:
         return self.buffers[0]
 
     def _open(self, rows: tuple[int, int], samples) -> None:
-        """Fresh (cleared) buffers for image rows ``rows``, whose samples are ``samples``."""
+        """Cleared buffers for image rows ``rows``, whose samples are ``samples``: views of the buffers of
+        the largest region so far (a region's are resolved or copied out before the next one opens, and
+        memory a process touches for the first time costs far more than clearing it again)."""
         r0, r1 = rows
         n = (r1 - r0) * self.width * self.spp
         self.rows = rows
         self.pix0 = r0 * self.width
-        self.depth = np.full(n, self.clear_depth, np.float32)
-        self.buffers = tuple(np.empty((n, c), np.float32) for c in self.channels)
+        if self._store is None or len(self._store[0]) < n:
+            self._store = (np.empty(n, np.float32),) + tuple(np.empty((n, c), np.float32) for c in self.channels)
+        self.depth = self._store[0][:n]
+        self.depth.fill(self.clear_depth)
+        self.buffers = tuple(b[:n] for b in self._store[1:])
         for buf, clear in zip(self.buffers, self.clears):
             # as one element the size of a row: numpy fills that as it fills a scalar, several times
             # faster than it broadcasts a row
