@@ -375,7 +375,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    keep_freed_memory()
+    if argv is None:  # the command itself, not a caller's process (tests call main with arguments)
+        keep_freed_memory()
     try:
         return args.func(args)
     except UserError as exc:

@@ -381,6 +381,7 @@ def test_run_ahead_passes_an_exception_on():
     stages = [Stage("a", lambda it: ([it], 1.0), 0), Stage("b", b, 0, ahead=lambda it: True)]
     with pytest.raises(ValueError, match="bad batch 3"):
         simulate(stages, list(range(6)), 2, run_ahead=2)
+    assert not [t for t in threading.enumerate() if t.name.startswith("run-ahead")]  # the thread is gone
 
 
 def test_cycles_for_and_chunks():
@@ -568,8 +569,8 @@ def test_frame_cycles_converge_as_batches_shrink(draw):
 
 @pytest.mark.parametrize("regions", [0, 2048])
 def test_run_ahead_changes_nothing_but_the_thread(draw, regions):
-    """The tile test and the sample tester stepped ahead on a second thread (the default, at depths 1 and 8)
-    or on the main thread: the same image, every counter (the timing-dependent ones too), cycles and timing, in one screen
+    """The tile test and the sample tester stepped ahead on a second thread (at depths 1, 2 and 8) or on the
+    main thread (the default): the same image, every counter (the timing-dependent ones too), cycles and timing, in one screen
     region or in several (the tester does not run ahead into the next region)."""
     def result(run_ahead):
         settings = [f"simulation.run_ahead={run_ahead}", f"simulation.region_samples={regions}",

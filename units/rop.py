@@ -323,7 +323,7 @@ class Rop:
     def open_region(self, rows: tuple[int, int], samples=None) -> None:
         """Move on to the next screen region, image rows ``rows`` (its ``samples``
         refresh z-cull's boxes and weight lens resolves): the current one is resolved into the images and
-        its buffers are dropped for fresh ones."""
+        its buffers are cleared for the next one."""
         self._resolve_region()
         self._open(rows, samples)
 
