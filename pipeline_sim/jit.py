@@ -45,6 +45,9 @@ _WARM = False
 #: the kernels the worker process compiles on a cold cache, by unit (``WARMERS``): the sample tester's and
 #: z-cull's refresh, about half the compile time (measured: 15.7 of 32 s) once its start is counted
 WORKER_UNITS = ("sample_tester", "zcull_refresh")
+#: seconds ``warm_up`` waits for the worker at most (it takes tens of seconds; a hung one is killed and
+#: its kernels compiled here)
+WORKER_TIMEOUT_S = 900.0
 #: the units this process compiles meanwhile
 PARENT_UNITS = ("sampling", "triangle_setup", "tile_traverser", "tile_test", "zcull", "shading", "rop")
 # what a worker runs: the worker group's warmers, imported from the directory given as its argument
@@ -60,11 +63,12 @@ def warm_up() -> float:
     worker = Worker()
     try:
         with worker.starting_on_compile():
-            try:
-                warm_units(PARENT_UNITS)
-            except Exception:  # noqa: BLE001 (an optimization only: warm_pass compiles whatever it needs)
-                pass
-        worker.wait()
+            for unit in PARENT_UNITS:
+                try:
+                    warm_units((unit,))
+                except Exception:  # noqa: BLE001 (an optimization only: warm_pass compiles whatever it needs)
+                    pass
+        worker.wait(WORKER_TIMEOUT_S)
     finally:
         worker.stop()
     warm_pass()
@@ -109,7 +113,7 @@ class Worker:
         try:
             self.process = subprocess.Popen(worker_command(), env=worker_env(), stdin=subprocess.PIPE,
                                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        except (OSError, ValueError):
+        except (OSError, ValueError, TypeError):  # (TypeError: no sys.executable)
             self.process = None
 
     def starting_on_compile(self) -> Any:
@@ -125,11 +129,14 @@ class Worker:
 
         return event.install_listener("numba:compile", _Listener())
 
-    def wait(self) -> None:
-        """Wait for the worker to exit (whether it succeeded does not matter: what it did not compile,
-        ``warm_pass`` compiles)."""
+    def wait(self, timeout: float) -> None:
+        """Wait for the worker to exit, at most ``timeout`` seconds (whether it succeeded does not matter:
+        what it did not compile, ``warm_pass`` compiles; ``stop`` kills a worker still running)."""
         if self.process is not None:
-            self.process.wait()
+            try:
+                self.process.wait(timeout)
+            except subprocess.TimeoutExpired:
+                pass
 
     def stop(self) -> None:
         """Kill the worker if it still runs, and close its stdin."""

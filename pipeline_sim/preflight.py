@@ -125,9 +125,11 @@ def estimate_memory(width: int, height: int, spp: int, triangles: int, arch: Arc
     region_tiles = math.ceil(rows / ts) * math.ceil(width / ts)
     # in flight: one triangle batch's tile records, each of its triangles
     # reaching at most every tile of the region; one tile batch's covered
-    # samples, at most its tiles' samples and at most a region's
+    # samples, at most its tiles' samples and at most a region's, and as many
+    # more as the sample tester may have tested ahead (simulation.run_ahead)
     tiles = min(sim.triangles_per_batch, max(triangles, 1)) * region_tiles * BYTES["tile_record"]
-    samples = min(sim.tiles_per_batch * ts * ts * spp, region_samples) * BYTES["sample_record"]
+    samples = ((1 + sim.run_ahead) * min(sim.tiles_per_batch * ts * ts * spp, region_samples)
+               * BYTES["sample_record"])
     # z-cull's boxes cover the whole frame, as many per tile as motion and a
     # lens may need (the estimate does not know yet whether the draw has them)
     boxes = arch.zcull.time_slices * arch.zcull.lens_boxes**2

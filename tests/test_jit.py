@@ -75,14 +75,18 @@ def cold_groups(tmp_path_factory) -> tuple[list[tuple[str, str]], Path]:
     return compiled, cache
 
 
-def test_worker_group_compiles_what_the_pass_needs(cold_groups):
+def test_worker_group_compiles_what_the_pass_needs(cold_groups, tmp_path):
     compiled, _ = cold_groups
     worker = _kernels(compiled, "worker")
     assert {"units.sample_tester.sample_test_kernel", "units.zcull.refresh_kernel"} <= worker
-    # the two groups share no kernel (no two processes compile one), and together they are every kernel of
-    # the warm pass with its argument types: the pass, in particular, compiles none of the worker's again
-    assert not worker & _kernels(compiled, "parent")
+    # together the two groups are every kernel of the warm pass with its argument types: the pass, in
+    # particular, compiles none of the worker's again
     assert [c for c in compiled if c[0] == "pass"] == []
+    # and they share no kernel: the parent's group alone, in a process and cache of its own as on a cold
+    # cache (in one process the first group would have compiled a kernel the second also calls), compiles
+    # none that the worker's compiles
+    parent = _kernels(_child('phase[0] = "parent"\njit.warm_units(jit.PARENT_UNITS)', tmp_path), "parent")
+    assert "units.triangle_setup.setup_kernel" in parent and not worker & parent
 
 
 def test_default_pass_after_warm_up_compiles_nothing(cold_groups):
@@ -165,6 +169,25 @@ def test_interrupted_warm_up_kills_the_worker(monkeypatch):
         jit.warm_up()
     worker = started[0]
     assert worker.process is not None and worker.process.returncode is not None
+
+
+def test_a_hung_worker_is_killed_after_the_timeout(monkeypatch):
+    started = []
+
+    def compile_something(w):
+        numba.njit(lambda x: x + 2)(1)  # a real compile: starts the worker
+
+    monkeypatch.setattr(jit, "_WARM", False)
+    monkeypatch.setattr(jit, "PARENT_UNITS", ("compile",))
+    monkeypatch.setitem(jit.WARMERS, "compile", compile_something)
+    monkeypatch.setattr(jit, "WORKER_TIMEOUT_S", 0.5)
+    monkeypatch.setattr(jit, "warm_pass", lambda: None)
+    monkeypatch.setattr(jit, "worker_command", lambda: [sys.executable, "-c", "import time; time.sleep(600)"])
+    start = jit.Worker.start
+    monkeypatch.setattr(jit.Worker, "start", lambda self: (start(self), started.append(self)))
+    assert jit.warm_up() < 60
+    worker = started[0]
+    assert worker.process is not None and worker.process.returncode is not None  # killed, not left running
 
 
 def test_worker_exits_with_its_parent():

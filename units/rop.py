@@ -136,7 +136,7 @@ def rop_kernel(pix, sidx, z, tri, color, noread, spp, pix0, func, depth_write, d
         traffic[1] += CHANNEL_BYTES * buf.shape[1] * n_passed
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def blend_kernel(pix, sidx, tri, color, passed, spp, pix0, tri_draw, by_draw, buf, c0, modes, blended, every,
                  some_draws, draw_ok, ops, traffic):
     """Blend each sample, in order, into a render target (docs/pipeline.md §2.7; the target as

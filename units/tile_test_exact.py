@@ -166,7 +166,7 @@ def exact_time_interval(p0, dp, tri, x0, x1, y0, y1, lo, hi, ops):
     return max(lo, first - ROOT_PAD * (1.0 + abs(first))), min(hi, last + ROOT_PAD * (1.0 + abs(last)))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def exact_kernel(tri_ids, tile_x, tile_y, wpos_lens_ok, p0, dp, keep, t_lo, t_hi, ops):
     """Narrow each kept 1x1-tile record's [t_lo, t_hi] to the exact hull (``exact_time_interval``) for
     the triangles ``wpos_lens_ok`` marks (motion only, w > 0); clear ``keep`` where it is empty.

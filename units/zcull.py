@@ -103,7 +103,7 @@ def zcull_kernel(tri, tx, ty, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, ti
             events[EV_NOREAD] += 1
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def interval_query_kernel(tx, ty, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, tiles_x, nt, nl, zmax, func, answer,
                           ops):
     """Interval-based occlusion query of one draw's tile records, in order (Nilsson12 §3): the records'
