@@ -30,7 +30,7 @@ class SimOptions:
         "rows) of at most this many samples, to bound memory; 0: one region. Same image at every size; z-cull "
         "counters and cycles follow the order")
     run_ahead: count(0, 64) = setting(
-        0, SPEED, "batches the tile test and the sample tester may each work ahead of the simulation, on a "
+        2, SPEED, "batches the tile test and the sample tester may each work ahead of the simulation, on a "
         "second thread, while the other units run (0: off, every unit steps on one thread)")
 
     def replace(self, **changes: Any) -> "SimOptions":

@@ -364,7 +364,7 @@ def _alternative(path: str, value):
     """A valid value other than the default, for every setting."""
     special = {"pass.mode": "conservative", "pass.time_intervals": "exact", "pass.sample_pattern": "sobol",
                "pass.interleave_tuples": 32,
-               "simulation.region_samples": 4096, "simulation.run_ahead": 2, "tile_test.algorithm": "bbox",
+               "simulation.region_samples": 4096, "simulation.run_ahead": 0, "tile_test.algorithm": "bbox",
                "tile_test.edge_solver": "quadratic",
                "tile_test.gamma": "tile", "pass.clip.t_hi": 0.5, "pass.clip.t_lo": 0.5,
                "pass.clip.u_lo": 0.0, "pass.clip.u_hi": 0.0, "pass.clip.v_lo": 0.0,

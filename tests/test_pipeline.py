@@ -569,8 +569,8 @@ def test_frame_cycles_converge_as_batches_shrink(draw):
 
 @pytest.mark.parametrize("regions", [0, 2048])
 def test_run_ahead_changes_nothing_but_the_thread(draw, regions):
-    """The tile test and the sample tester stepped ahead on a second thread (at depths 1, 2 and 8) or on the
-    main thread (the default): the same image, every counter (the timing-dependent ones too), cycles and timing, in one screen
+    """The tile test and the sample tester stepped ahead on a second thread (at depths 1, 2 (the default)
+    and 8) or on the main thread: the same image, every counter (the timing-dependent ones too), cycles and timing, in one screen
     region or in several (the tester does not run ahead into the next region)."""
     def result(run_ahead):
         settings = [f"simulation.run_ahead={run_ahead}", f"simulation.region_samples={regions}",
