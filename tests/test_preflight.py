@@ -169,8 +169,9 @@ def test_estimate_terms_follow_the_settings():
     assert estimate_memory(320, 180, 16, 1000, arch, images=3).parts["image"] == 3 * small.parts["image"]
     # the sample tester's outputs of the batches it tested ahead are held too
     covered = 512 * 4 * 4 * 16 * preflight.BYTES["sample_record"]  # one tile batch's samples
+    one_thread = estimate_memory(320, 180, 16, 1000, arch, sim=SimOptions(run_ahead=0))
     ahead = estimate_memory(320, 180, 16, 1000, arch, sim=SimOptions(run_ahead=2))
-    assert ahead.parts["in flight"] - small.parts["in flight"] == 2 * covered
+    assert ahead.parts["in flight"] - one_thread.parts["in flight"] == 2 * covered
 
 
 def test_png_conversion_takes_no_float_copy_of_the_whole_image():
