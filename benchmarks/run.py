@@ -129,9 +129,9 @@ unless said otherwise:
    Writes ``convergence.csv``.
 
 12. ("per_sample" section) Cost per sample: the default scene at 256 spp,
-   in nanoseconds per sample end to end, on one thread (as shipped) and with
-   the tile test and the sample tester on the run-ahead thread
-   (``simulation.run_ahead = 2``), timed alternately; then instrumented
+   in nanoseconds per sample end to end, with the tile test and the sample
+   tester on the run-ahead thread (as shipped, ``simulation.run_ahead = 2``)
+   and on one thread, timed alternately; then instrumented
    as in 2 (on one thread), per part
    (tile test, z-cull, tester, shading, ROP, the z-cull refresh, sample
    generation: in wall time the main thread's waits for a region's samples,
@@ -467,8 +467,8 @@ def bench_per_sample(cfg: dict) -> dict:
            **unit_breakdown(runs, float(np.median([w for w, _ in simpy])), float(np.median([c for _, c in simpy])))}
     out["instrumented_ns_per_sample"] = 1e9 * out["instrumented_total_s"] / samples
     out["instrumented_ns_per_sample_cpu"] = 1e9 * out["instrumented_total_cpu_s"] / samples
-    # uninstrumented passes on one thread (simulation.run_ahead = 0, as shipped and as the instrumented
-    # runs) and with the tile test and the sample tester on the run-ahead thread, alternately
+    # uninstrumented passes on one thread (simulation.run_ahead = 0, as the instrumented runs) and with the
+    # tile test and the sample tester on the run-ahead thread, alternately; "as shipped" is the default's
     depth = cfg["per_sample"]["run_ahead"]
     variants = {"one_thread": 0, "run_ahead": depth}
     log(f"per sample: {cfg['per_sample']['plain']} plain runs each, one thread and run-ahead, alternately")

@@ -63,11 +63,7 @@ def warm_up() -> float:
     worker = Worker()
     try:
         with worker.starting_on_compile():
-            for unit in PARENT_UNITS:
-                try:
-                    warm_units((unit,))
-                except Exception:  # noqa: BLE001 (an optimization only: warm_pass compiles whatever it needs)
-                    pass
+            warm_units(PARENT_UNITS, tolerant=True)
         worker.wait(WORKER_TIMEOUT_S)
     finally:
         worker.stop()
@@ -316,8 +312,14 @@ WARMERS: dict[str, Callable[[_Tiny], None]] = {
 }
 
 
-def warm_units(units: tuple[str, ...]) -> None:
-    """Compile (or load) the kernels of ``units`` (keys of ``WARMERS``) with the argument types of a real pass."""
+def warm_units(units: tuple[str, ...], tolerant: bool = False) -> None:
+    """Compile (or load) the kernels of ``units`` (keys of ``WARMERS``) with the argument types of a real pass.
+    ``tolerant``: a warmer that fails leaves the others to run (warming is an optimization only: ``warm_pass``
+    compiles whatever is still missing)."""
     w = _tiny()
     for unit in units:
-        WARMERS[unit](w)
+        try:
+            WARMERS[unit](w)
+        except Exception:  # noqa: BLE001
+            if not tolerant:
+                raise

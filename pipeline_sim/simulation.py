@@ -3,8 +3,9 @@
 Batch sizes set the granularity of the timing model (records per SimPy
 batch between units), ``region_samples`` how much of a frame is held at
 once and ``run_ahead`` how far the tile test and the sample tester may work
-ahead on a second thread; none of them changes the image. A scene file sets them in its
-``[simulation]`` table, ``--set simulation.KEY=VALUE`` on top of that.
+ahead on a second thread; none of them changes the image. A scene file sets
+them in its ``[simulation]`` table, ``--set simulation.KEY=VALUE`` on top of
+that.
 """
 
 from __future__ import annotations

@@ -568,14 +568,25 @@ def test_frame_cycles_converge_as_batches_shrink(draw):
 
 
 @pytest.mark.parametrize("regions", [0, 2048])
-def test_run_ahead_changes_nothing_but_the_thread(draw, regions):
+def test_run_ahead_changes_nothing_but_the_thread(draw, regions, monkeypatch):
     """The tile test and the sample tester stepped ahead on a second thread (at depths 1, 2 (the default)
-    and 8) or on the main thread: the same image, every counter (the timing-dependent ones too), cycles and timing, in one screen
-    region or in several (the tester does not run ahead into the next region)."""
+    and 8) or on the main thread: the same image, every counter (the timing-dependent ones too), cycles
+    and timing, in one screen region or in several (the tester does not run ahead into the next region)."""
+    from units.sample_tester import SampleTester
+
+    threads = []
+    tester_run = SampleTester.run
+    monkeypatch.setattr(SampleTester, "run", lambda self, tiles: (threads.append(threading.current_thread().name),
+                                                                  tester_run(self, tiles))[1])
+
     def result(run_ahead):
         settings = [f"simulation.run_ahead={run_ahead}", f"simulation.region_samples={regions}",
                     "simulation.tiles_per_batch=16"]
-        return run_pass(RenderPass(draw=draw, **pass_settings(settings), spp=SPP))
+        threads.clear()
+        res = run_pass(RenderPass(draw=draw, **pass_settings(settings), spp=SPP))
+        ahead = sum(name.startswith("run-ahead") for name in threads)
+        assert ahead > len(threads) // 2 if run_ahead else ahead == 0  # where the tester's batches ran
+        return res
 
     one_thread = result(0)
     assert one_thread.regions.count == (1 if regions == 0 else 3)
