@@ -36,7 +36,8 @@ from pipeline_sim.simulation import SimOptions
 from pipeline_sim.targets import AppendBuffer, AppendResult, ShaderOutput, Target, check_targets
 from units import culling
 from units.rop import Rop
-from units.sample_tester import EV_2D, EV_PIXELS, TEST_OPS_MADD, TEST_OPS_MUL, SampleTester
+from units.sample_tester import (EV_2D, EV_PIXELS, TEST_OPS_MADD, TEST_OPS_MUL, SampleTester,
+                                 TileMajorLayouts)
 from units.shading_cache import MAX_CACHED_TRIANGLES, Shading
 from units.tile_test import TileTest
 from units.tile_traverser import TileTraverser
@@ -174,18 +175,28 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     spp = 1 if conservative else p.spp
     pattern = "table" if p.sample_table is not None else state.sample_pattern
 
-    def region_samples(rows: tuple[int, int]):
+    # the sample tester's layout of a region's samples is made with them, on the thread that makes the next
+    # region's ahead (a conservative pass tests no samples)
+    layouts = TileMajorLayouts(ts)
+
+    def made(rows: tuple[int, int]):
         return make_samples(draw.width, draw.height, spp, p.seed, lens=lens, motion=motion, pattern=pattern,
                             table=p.sample_table, scramble_table=p.scramble_table,
                             interleave_tuples=state.interleave_tuples, rows=rows)
 
+    def region_samples(rows: tuple[int, int]):
+        return made(rows) if conservative else layouts.prepare(made(rows))
+
     cached_shading = state.shading_mode == "cache" and not conservative
     step = row_step(ts, arch.tile_traverser.coarse_factor, state.shading_rate if cached_shading else None)
     plan = plan_regions(draw.width, draw.height, spp, p.simulation.region_samples, step)
+    # a region's samples are made when the pipeline is about to need them (the first visited region's once
+    # the triangles are binned, each next one while the one before runs); the pattern's shared (u, v, t)
+    # tuples (Interleave UVT) come with a set of no rows
     samples = RegionSamples(plan, region_samples)
-    first = samples.region(0)
+    tuples = made((0, 0)).tuples
     algorithm = culling.algorithm(arch.tile_test.algorithm)
-    if algorithm.NEEDS_TUPLES and first.tuples is None:
+    if algorithm.NEEDS_TUPLES and tuples is None:
         raise UserError(f"pass {p.name}: tile_test.algorithm = '{algorithm.NAME}' needs the 'interleave' sample "
                         f"pattern, not '{pattern}'")
 
@@ -196,7 +207,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     traverser = TileTraverser(arch.tile_traverser, setup.table, ts, draw.width, draw.height,
                               coarse_test=algorithm.COARSE_TEST)
     tile_test = TileTest(arch.tile_test, setup.table, ts, draw.width, draw.height, draw.depth_w,
-                         clips[0], tuples=first.tuples, extension=setup.extension,
+                         clips[0], tuples=tuples, extension=setup.extension,
                          exact_time=conservative and state.time_intervals == "exact")
     spec = arch.pipeline.specialize
     zcull = ZCull(arch.zcull, state.depth_test, ts, draw.width, draw.height, p.clear_depth,
@@ -210,25 +221,26 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         if not zcull.active:
             raise UserError(f"{where}: draw {i} asks an interval query, which needs z-cull: zcull.enabled, "
                             "depth test less or lequal, standard mode")
-    tester = SampleTester(arch.sample_tester, setup.table, None, ts, state.backface_culling, spec)
+    tester = SampleTester(arch.sample_tester, setup.table, None, ts, state.backface_culling, spec, layouts)
     if cached_shading and draw.n > MAX_CACHED_TRIANGLES:
         raise UserError(f"{where}: the shading cache keys at most {MAX_CACHED_TRIANGLES:,} triangles and the pass "
                         f"draws {draw.n:,}: set pass.shading_mode = \"per_sample\"")
     shading = Shading(arch.shading, state.shading_mode, state.shading_rate, draw, setup.table, None, p.shader,
                       p.params, shader_textures, conservative, sum(o.channels for o in p.outputs), append,
                       shading_view=state.shading_view)
-    # the ROP reads a region's samples to refresh z-cull and for lens resolves
-    rop_samples = zcull.active or any(t.resolve == "lens" for t in p.targets or ())
-    rop = Rop(arch.rop, state, draw.width, draw.height, spp, p.clear_color, p.clear_depth, zcull if zcull.active else None,
-              first if rop_samples else None, rows=plan.bounds(0), keep_depth=keep_depth, targets=p.targets,
-              outputs=p.outputs, tri_draw=tri_draw, n_draws=len(draws))
-    # each unit that holds a region's samples or buffers is handed them as its batches move on; the
-    # sample tester and shading take a region's samples with its first batch, the ROP (which needs
-    # samples only to refresh z-cull and for lens resolves) starts with region 0's buffers
+    # the ROP reads a region's samples to refresh z-cull and for lens resolves (which need the first
+    # region's even when no batch reaches it)
+    lens_resolve = any(t.resolve == "lens" for t in p.targets or ())
+    rop_samples = zcull.active or lens_resolve
+    rop = Rop(arch.rop, state, draw.width, draw.height, spp, p.clear_color, p.clear_depth,
+              zcull if zcull.active else None, samples.region(0) if lens_resolve else None, rows=plan.bounds(0),
+              keep_depth=keep_depth, targets=p.targets, outputs=p.outputs, tri_draw=tri_draw, n_draws=len(draws))
+    # each unit that holds a region's samples or buffers is handed them as its batches move on: the
+    # sample tester, shading and the ROP (which needs samples only to refresh z-cull and for lens
+    # resolves, and starts with region 0's buffers) take a region's samples with its first batch
     tester_at = RegionCursor(lambda r: tester.use_samples(samples.region(r)))
     shading_at = RegionCursor(lambda r: shading.use_samples(samples.region(r)))
-    rop_at = RegionCursor(lambda r: rop.open_region(plan.bounds(r), samples.region(r) if rop_samples else None),
-                          region=0)
+    rop_at = RegionCursor(lambda r: rop.open_region(plan.bounds(r), samples.region(r) if rop_samples else None))
     cs = {u.name: CounterSet(u.name, u.events, u.timing_dependent)
           for u in (setup, traverser, tile_test, zcull, tester, shading, rop)}
     pcfg, sim = arch.pipeline, p.simulation
@@ -407,6 +419,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         timing = simulate(stages, tri_batches, pcfg.queue_depth, capacities, run_ahead=sim.run_ahead)
         image = rop.resolve()
         depth = rop.depth_samples()
+        one_set = samples.region(0) if plan.count == 1 else None
     finally:
         samples.close()
     appended = None
@@ -421,7 +434,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     return PassResult(
         name=p.name, image=image, counters=counters, timing=timing, wall_time=wall,
         dimensions={"motion": motion, "lens": lens}, units_used=[s.name for s in stages],
-        depth=depth, samples=first if plan.count == 1 else None, regions=plan, region_samples_made=samples.made,
+        depth=depth, samples=one_set, regions=plan, region_samples_made=samples.made,
         images=rop.images, sample_data=rop.sample_data(), append=appended, queries=rop.queries,
         interval_queries={i: zcull.query_answer(i) for i in interval},
     )

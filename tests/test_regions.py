@@ -118,6 +118,25 @@ def test_the_next_region_to_visit_is_made_ahead_on_another_thread_with_the_same_
     assert regions.made == 3
 
 
+def test_before_any_request_the_first_region_to_visit_is_made_ahead():
+    """Told which regions it will visit before any request, the first of them is made on the background
+    thread; a region never visited is never made."""
+    made_on = {}
+
+    def make(rows):
+        made_on[rows[0] // 16] = threading.current_thread().name
+        return make_samples(8, 64, 4, 1, lens=False, motion=True, rows=rows)
+
+    regions = RegionSamples(RegionPlan(8, 64, 16), make, keep=1)
+    regions.will_visit([1, 3])
+    try:
+        assert regions.region(1).row0 == 16 and regions.region(3).row0 == 48
+    finally:
+        regions.close()
+    assert set(made_on) == {1, 3} and all(n.startswith("region-samples") for n in made_on.values())
+    assert regions.made == 2
+
+
 def test_a_region_made_ahead_and_never_requested_is_dropped():
     plan = RegionPlan(8, 64, 16)
     regions = RegionSamples(plan, lambda rows: make_samples(8, 64, 4, 1, lens=False, motion=True, rows=rows), keep=1)

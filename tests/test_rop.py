@@ -335,3 +335,50 @@ def test_each_region_starts_cleared():
             want = np.tile(np.array(clear, np.float32), (n, 1))
             np.testing.assert_array_equal(buf.view(np.uint32), want.view(np.uint32))
         np.testing.assert_array_equal(rop.depth, np.full(n, 0.5, np.float32))
+
+
+def test_the_open_regions_samples_come_with_its_first_batch_and_keep_what_was_written():
+    """The pipeline hands a region's samples to the ROP with its first batch: the first region, opened
+    when the ROP is made, may get them then, its buffers kept (not cleared again); a region without
+    them resolves as a box, and refuses a lens resolve."""
+    from pipeline_sim.definitions import LensRegion, ShaderOutput, Target
+    from pipeline_sim.sampling import make_samples
+
+    width, height, spp = 4, 4, 4
+    outputs = (ShaderOutput("a", 2),)
+    n = 2 * width * spp
+    batch = dict(pix=np.repeat(np.arange(2 * width, dtype=np.int32), spp),
+                 sidx=np.tile(np.arange(spp, dtype=np.int32), 2 * width), z=np.zeros(n, np.float32),
+                 color=np.arange(2 * n, dtype=np.float32).reshape(n, 2), noread=np.zeros(n, bool))
+    s = make_samples(width, height, spp, 2, lens=True, motion=False, rows=(0, 2))
+    box = (Target("box", "a"),)
+    lens = box + (Target("lens", "a", resolve="lens", views=(LensRegion(-1, 0),)),)
+    for targets in (box, lens):
+        rop = Rop(RopConfig(), PassState(depth_test="always"), width, height, spp, (0, 0, 0, 0), 1.0, rows=(0, 2),
+                  targets=targets, outputs=outputs)
+        rop.run(batch)
+        if targets is lens:
+            with pytest.raises(ValueError, match="rows 0-2: a lens resolve needs the region's samples"):
+                rop.open_region((2, 4))
+        rop.open_region((0, 2), s)
+        assert rop.samples is s
+        np.testing.assert_array_equal(rop.buffers[0][:, 0], np.arange(0, 2 * n, 2, dtype=np.float32))
+        img = rop.resolve()
+        want = np.arange(0, 2 * n, 2, dtype=np.float64).reshape(2, width, spp).mean(axis=2)
+        np.testing.assert_array_equal(img[:2, :, 0], want)
+
+
+def test_kept_samples_of_a_region_never_opened_are_the_clears():
+    """A "none" target over three regions, the last one never opened (no batch reached it): its kept
+    per-sample data are the target's clear values, not whatever memory held."""
+    from pipeline_sim.definitions import ShaderOutput, Target
+
+    width, height, spp = 3, 6, 2
+    targets = (Target("box", "a"), Target("raw", "a", clear=(1.5, -2.0), resolve="none"))
+    rop = Rop(RopConfig(), PassState(depth_test="always"), width, height, spp, (0, 0, 0, 0), 1.0, rows=(0, 2),
+              targets=targets, outputs=(ShaderOutput("a", 2),))
+    rop.open_region((2, 4))
+    rop.resolve()
+    raw = rop.sample_data()["raw"]
+    assert raw.shape == (height, width, spp, 2)
+    np.testing.assert_array_equal(raw.reshape(-1, 2), np.tile(np.float32([1.5, -2.0]), (height * width * spp, 1)))

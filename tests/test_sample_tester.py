@@ -444,3 +444,37 @@ def test_layout_keeps_nan_rules():
         np.testing.assert_array_equal(a, b)
     x[3] = np.nan
     assert SampleTester(None, None, dataclasses.replace(s, x=x), 4, False).layout()[9] == np.inf
+
+
+def test_layouts_prepared_on_another_thread_equal_those_built_in_place_and_reuse_buffers():
+    """``TileMajorLayouts``: a layout prepared on another thread (as a region's samples are made ahead)
+    is the one the tester takes, equal to a layout built afresh by a tester of its own; a released
+    layout's buffers serve the next region's; layouts prepared for regions the tester has passed are
+    released when it takes a later one."""
+    import threading
+
+    from pipeline_sim.sampling import make_samples
+    from units.sample_tester import SampleTester, TileMajorLayouts
+
+    width, spp, ts = 21, 8, 4
+    sets = [make_samples(width, 24, spp, 3, lens=True, motion=True, rows=(r0, r0 + 8)) for r0 in (0, 8, 16)]
+    layouts = TileMajorLayouts(ts)
+    tester = SampleTester(None, None, None, ts, False, layouts=layouts)
+    worker = threading.Thread(target=lambda: [layouts.prepare(s) for s in sets])
+    worker.start()
+    worker.join()
+    tester.use_samples(sets[1])  # region 0 got no batch: its prepared layout is dropped on the next take
+    got = tester.layout()
+    want = SampleTester(None, None, sets[1], ts, False).layout()
+    for a, b in zip(got, want):
+        np.testing.assert_array_equal(a, b)
+    assert len(layouts._ready) == 1 and len(layouts._free) == 1  # region 2's waits; region 0's buffers free
+    tester.use_samples(sets[2])
+    tester.layout()
+    tester.use_samples(make_samples(width, 24, spp, 4, lens=True, motion=True, rows=(0, 8)))
+    free = [buffers[0][0] for buffers in layouts._free]
+    assert len(free) == TileMajorLayouts.KEEP_FREE
+    x = tester.layout()[0]  # built now, in buffers an earlier region left
+    assert any(np.shares_memory(x, b) for b in free)
+    with pytest.raises(ValueError, match="8-pixel tester"):
+        SampleTester(None, None, None, 8, False, layouts=layouts)

@@ -259,8 +259,9 @@ class Rop:
             self.images[t.name] = [np.empty((height, width, self.channels[j]), np.float32) for _ in range(n_images)]
             for img in self.images[t.name]:
                 img[:] = self.clears[j]
-            if t.resolve == "none" and not self.one_region:
+            if t.resolve == "none" and not self.one_region:  # (a region no sample reaches keeps the clear)
                 self.frame_samples[t.name] = np.empty((width * height * spp, self.channels[j]), np.float32)
+                self.frame_samples[t.name][:] = self.clears[j]
         first = self.targets[0]
         if first.resolve == "box":
             self.image = self.images[first.name][0]
@@ -288,7 +289,7 @@ class Rop:
         memory a process touches for the first time costs far more than clearing it again)."""
         r0, r1 = rows
         n = (r1 - r0) * self.width * self.spp
-        self.rows = rows
+        self.rows = tuple(rows)
         self.pix0 = r0 * self.width
         if self._store is None or len(self._store[0]) < n:
             self._store = (np.empty(n, np.float32),) + tuple(np.empty((n, c), np.float32) for c in self.channels)
@@ -312,6 +313,8 @@ class Rop:
                 img = self.images[t.name][0] if t.resolve == "box" else self.image
                 resolve_kernel(buf, self.spp, img[r0:r1].reshape(-1, buf.shape[1]))
             if t.resolve == "lens":
+                if self.samples is None:
+                    raise ValueError(f"rows {r0}-{r1}: a lens resolve needs the region's samples")
                 for view, img in zip(t.views, self.images[t.name]):
                     img[r0:r1] = lens_resolve(buf, self.spp, self.samples.u, self.samples.v, view,
                                               self.clears[j]).reshape(r1 - r0, self.width, -1)
@@ -323,7 +326,11 @@ class Rop:
     def open_region(self, rows: tuple[int, int], samples=None) -> None:
         """Move on to the next screen region, image rows ``rows`` (its ``samples``
         refresh z-cull's boxes and weight lens resolves): the current one is resolved into the images and
-        its buffers are cleared for the next one."""
+        its buffers are cleared for the next one. The current region's rows again: only its ``samples``
+        are handed over (the pipeline may hand the first region's when its first batch comes)."""
+        if tuple(rows) == self.rows:
+            self.samples = samples
+            return
         self._resolve_region()
         self._open(rows, samples)
 

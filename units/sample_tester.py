@@ -22,6 +22,8 @@ same for the two triangles that share an edge, which makes it watertight.
 
 from __future__ import annotations
 
+import threading
+
 import numba as nb
 import numpy as np
 
@@ -1045,12 +1047,91 @@ _NO_TUPLES = np.zeros(0, np.int8)
 SAMPLE_FILTERS = ("lines", "mask")
 
 
+class TileMajorLayouts:
+    """The samples of sample sets in the sample tester's two tile-major orders (``_tile_major``).
+
+    ``prepare`` builds a set's layout on the thread that calls it: a screen
+    region's as its samples are made, on the thread that makes the next
+    region's ahead (``pipeline_sim.regions.RegionSamples``), so that the
+    tester finds it ready when its batches reach the region. ``take`` hands
+    the tester a set's layout (built then if it was not prepared) and
+    ``release`` takes it back: its buffers go to the next set's layout, since
+    memory a process touches for the first time costs far more than writing
+    it again. Thread-safe.
+    """
+
+    KEEP_FREE = 2  # released buffer sets kept for reuse
+
+    def __init__(self, tile_size: int):
+        self.tile_size = tile_size
+        self._lock = threading.Lock()
+        self._ready: dict[int, tuple] = {}  # by id(samples): (samples, layout)
+        self._free: list[tuple] = []  # buffer sets of released layouts
+
+    def prepare(self, samples):
+        """Build the layout of ``samples`` now, for a later ``take``; returns ``samples``."""
+        layout = self._build(samples)
+        with self._lock:
+            self._ready[id(samples)] = (samples, layout)
+        return samples
+
+    def take(self, samples) -> tuple:
+        """The layout of ``samples``: the one prepared, else built now. Layouts prepared for sets of
+        earlier rows (regions the pipeline has passed) are released."""
+        with self._lock:
+            got = self._ready.pop(id(samples), None)
+            stale = [k for k, (s, _) in self._ready.items() if s.row0 < samples.row0]
+            old = [self._ready.pop(k)[1] for k in stale]
+        for layout in old:
+            self.release(layout)
+        return got[1] if got is not None else self._build(samples)
+
+    def release(self, layout: tuple) -> None:
+        """Take back a layout the tester no longer reads; its buffers serve a later one."""
+        with self._lock:
+            if len(self._free) < self.KEEP_FREE:
+                self._free.append(layout[-1])
+
+    def _buffers(self, n: int, has_tup: bool) -> tuple:
+        with self._lock:
+            for i, (f32, i8) in enumerate(self._free):
+                if len(f32[0]) >= n and (not has_tup or (i8 is not None and len(i8) >= n)):
+                    return self._free.pop(i)
+        return (tuple(np.empty(n, np.float32) for _ in range(5)), np.empty(n, np.int8) if has_tup else None)
+
+    def _build(self, s) -> tuple:
+        """(x, y, u, v, t, tuple index, slot_lo, slot_hi, uv_range, xy_max, buffers): the kernel's
+        arguments, pixel-major then slot-major in each array, views of ``buffers``."""
+        n = len(s.t)
+        if s.width * s.height * s.spp != n:
+            raise ValueError("the sample tester needs the samples of whole rows")
+        if s.row0 % self.tile_size:
+            raise ValueError(f"a screen region starts at row {s.row0}, not on a tile row")
+        has_tup = s.tup is not None
+        buffers = self._buffers(2 * n, has_tup)
+        f32, i8 = buffers
+        tup = i8[:2 * n] if has_tup else np.zeros(1, np.int8)  # (the kernel reads index 0)
+        arrays = tuple(a[:2 * n] for a in f32) + (tup,)
+        lo = np.empty(s.spp, np.float32)
+        hi = np.empty(s.spp, np.float32)
+        stats = np.empty(6, np.float64)
+        _tile_major(s.width, s.height, s.row0, s.spp, self.tile_size, s.x, s.y, s.u, s.v, s.t,
+                    s.tup if has_tup else _NO_TUPLES, *arrays, lo, hi, stats)
+        if not (np.all(np.diff(lo) >= 0) and np.all(np.diff(hi) >= 0)):
+            lo[:] = -np.inf  # slots not in t order: every record takes them all
+            hi[:] = np.inf
+        m = max(float(stats[0]), float(stats[1]))
+        xy_max = m * (1.0 + 1e-6) if np.isfinite(m) else np.inf
+        return arrays + (lo, hi, stats[2:], xy_max, buffers)
+
+
 class SampleTester:
     """Functional model of the sample tester unit.
 
     ``samples``: the samples of the screen region its batches are in, whole
     tile rows; the pipeline hands it those of each region as its batches move
-    on (``use_samples``). The tile-major copies are those of the current region.
+    on (``use_samples``). It tests them in their tile-major layout, taken from
+    ``layouts`` (which may have prepared it ahead) on the region's first batch.
     """
 
     name = "sample_tester"
@@ -1058,16 +1139,18 @@ class SampleTester:
     event_meanings = EVENT_MEANINGS
     timing_dependent = TIMING_DEPENDENT
 
-    def __init__(self, config, table, samples, tile_size: int, backface_culling: bool, specialize: bool = True):
+    def __init__(self, config, table, samples, tile_size: int, backface_culling: bool, specialize: bool = True,
+                 layouts: TileMajorLayouts | None = None):
         self.config = config
         self.specialize = specialize
         self.table = table
         self.tile_size = tile_size
         self.backface_culling = backface_culling
+        self.layouts = TileMajorLayouts(tile_size) if layouts is None else layouts
+        if self.layouts.tile_size != tile_size:
+            raise ValueError(f"layouts of {self.layouts.tile_size}-pixel tiles for a {tile_size}-pixel tester")
         self.samples = None
         self._layout = None
-        self._buffers = None  # the tile-major float32 arrays (``layout``), sized for the largest region so far
-        self._tup_buffer = None
         self._out = None  # the kernel's output buffers, sized for the largest batch so far (``run`` copies them)
         if samples is not None:
             self.use_samples(samples)
@@ -1077,38 +1160,17 @@ class SampleTester:
         if samples is not self.samples:
             if samples.row0 % self.tile_size:
                 raise ValueError(f"a screen region starts at row {samples.row0}, not on a tile row")
+            if self._layout is not None:
+                self.layouts.release(self._layout)
             self.samples = samples
             self._layout = None
 
     def layout(self) -> tuple:
-        """The samples in the kernel's two tile-major orders (``_tile_major``),
-        pixel-major then slot-major in each array, built on first use:
-        (x, y, u, v, t, tuple index, slot_lo, slot_hi, uv_range, xy_max).
-        The arrays are views of buffers a later region reuses."""
+        """The samples in the kernel's two tile-major orders (``TileMajorLayouts``), on first use:
+        (x, y, u, v, t, tuple index, slot_lo, slot_hi, uv_range, xy_max)."""
         if self._layout is None:
-            s = self.samples
-            n = len(s.t)
-            if s.width * s.height * s.spp != n:
-                raise ValueError("the sample tester needs the samples of whole rows")
-            has_tup = s.tup is not None
-            if self._buffers is None or len(self._buffers[0]) < 2 * n:
-                self._buffers = tuple(np.empty(2 * n, np.float32) for _ in range(5))
-            if has_tup and (self._tup_buffer is None or len(self._tup_buffer) < 2 * n):
-                self._tup_buffer = np.empty(2 * n, np.int8)
-            tup = self._tup_buffer[:2 * n] if has_tup else np.zeros(1, np.int8)  # (the kernel reads index 0)
-            arrays = tuple(a[:2 * n] for a in self._buffers) + (tup,)
-            lo = np.empty(s.spp, np.float32)
-            hi = np.empty(s.spp, np.float32)
-            stats = np.empty(6, np.float64)
-            _tile_major(s.width, s.height, s.row0, s.spp, self.tile_size, s.x, s.y, s.u, s.v, s.t,
-                        s.tup if has_tup else _NO_TUPLES, *arrays, lo, hi, stats)
-            if not (np.all(np.diff(lo) >= 0) and np.all(np.diff(hi) >= 0)):
-                lo[:] = -np.inf  # slots not in t order: every record takes them all
-                hi[:] = np.inf
-            m = max(float(stats[0]), float(stats[1]))
-            xy_max = m * (1.0 + 1e-6) if np.isfinite(m) else np.inf
-            self._layout = arrays + (lo, hi, stats[2:], xy_max)
-        return self._layout
+            self._layout = self.layouts.take(self.samples)
+        return self._layout[:-1]
 
     def kernel_args(self, tiles: dict[str, np.ndarray], out: dict[str, np.ndarray], ops: np.ndarray,
                     events: np.ndarray) -> tuple:
