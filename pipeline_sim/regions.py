@@ -162,10 +162,10 @@ class RegionSamples:
         return s
 
     def will_visit(self, regions: Sequence[int]) -> None:
-        """The regions the pipeline will visit; starts making the one after the latest request (before
-        any request: the first of them)."""
+        """The regions the pipeline will visit; starts making the one after the latest request."""
         self._visits = sorted(regions)
-        self._prefetch_after(next(reversed(self._sets)) if self._sets else -1)
+        if self._sets:
+            self._prefetch_after(next(reversed(self._sets)))
 
     def _prefetch_after(self, region: int) -> None:
         i = bisect.bisect_right(self._visits, region)

@@ -190,9 +190,9 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     cached_shading = state.shading_mode == "cache" and not conservative
     step = row_step(ts, arch.tile_traverser.coarse_factor, state.shading_rate if cached_shading else None)
     plan = plan_regions(draw.width, draw.height, spp, p.simulation.region_samples, step)
-    # a region's samples are made when the pipeline is about to need them (the first visited region's once
-    # the triangles are binned, each next one while the one before runs); the pattern's shared (u, v, t)
-    # tuples (Interleave UVT) come with a set of no rows
+    # a region's samples are made when a unit first needs them (a region with triangles may get no batch:
+    # the default scene's top one), and each next region's while the one before runs; the pattern's
+    # shared (u, v, t) tuples (Interleave UVT) come with a set of no rows
     samples = RegionSamples(plan, region_samples)
     tuples = made((0, 0)).tuples
     algorithm = culling.algorithm(arch.tile_test.algorithm)

@@ -620,6 +620,9 @@ def _tile_major(width, height, row0, spp, tile_size, x, y, u, v, t, tup, ax, ay,
     of slots that holds every sample with t in t^. ``stats``: the largest |x|
     and the largest |y| (each NaN if one is NaN), the smallest and largest u
     and v (NaN ignored; 0 included).
+
+    Tile by tile: the pixel-major copy reads each pixel's samples in order, and the slot-major one
+    transposes that block while it is still in cache (twice as fast as scattering both from the source).
     """
     n = x.shape[0]
     for s in range(spp):
@@ -635,49 +638,65 @@ def _tile_major(width, height, row0, spp, tile_size, x, y, u, v, t, tup, ax, ay,
     u_hi = zero
     v_lo = zero
     v_hi = zero
-    for py in range(height):
-        ty = py // tile_size
-        r = py - ty * tile_size
-        h = min(tile_size, height - ty * tile_size)
-        fy = np.float32(py + row0)
-        for px in range(width):
-            tx = px // tile_size
-            cl = px - tx * tile_size
-            w = min(tile_size, width - tx * tile_size)
-            base = (ty * tile_size * width + tx * tile_size * h) * spp
-            kp = base + (r * w + cl) * spp
-            ks = n + base + r * w + cl
-            step = w * h
-            fx = np.float32(px)
-            src = (py * width + px) * spp
+    for ty in range((height + tile_size - 1) // tile_size):
+        y0 = ty * tile_size
+        h = min(tile_size, height - y0)
+        for tx in range((width + tile_size - 1) // tile_size):
+            x0 = tx * tile_size
+            w = min(tile_size, width - x0)
+            base = (y0 * width + x0 * h) * spp
+            area = w * h
+            # pixel-major: each pixel's samples in a contiguous run, read and written in order
+            for r in range(h):
+                fy = np.float32(y0 + r + row0)
+                for cl in range(w):
+                    fx = np.float32(x0 + cl)
+                    src = ((y0 + r) * width + x0 + cl) * spp
+                    kp = base + (r * w + cl) * spp
+                    for s in range(spp):
+                        j = src + s
+                        k = kp + s
+                        xs = x[j]
+                        ys = y[j]
+                        us = u[j]
+                        vs = v[j]
+                        tk = t[j]
+                        ax[k] = fx + xs
+                        ay[k] = fy + ys
+                        tu[k] = us
+                        tv[k] = vs
+                        tt[k] = tk
+                        slot_lo[s] = tk if tk < slot_lo[s] else slot_lo[s]
+                        slot_hi[s] = tk if tk > slot_hi[s] else slot_hi[s]
+                        nan_x |= xs != xs
+                        nan_y |= ys != ys
+                        a = abs(xs)
+                        mx = a if a > mx else mx
+                        a = abs(ys)
+                        my = a if a > my else my
+                        u_lo = us if us < u_lo else u_lo
+                        u_hi = us if us > u_hi else u_hi
+                        v_lo = vs if vs < v_lo else v_lo
+                        v_hi = vs if vs > v_hi else v_hi
+                    if has_tup:
+                        for s in range(spp):
+                            ttup[kp + s] = tup[src + s]
+            # slot-major: the tile's pixel-major block transposed (it is still in cache)
             for s in range(spp):
-                j = src + s
-                xs = x[j]
-                ys = y[j]
-                us = u[j]
-                vs = v[j]
-                tk = t[j]
-                k = kp + s
-                q = ks + s * step
-                ax[k] = ax[q] = fx + xs
-                ay[k] = ay[q] = fy + ys
-                tu[k] = tu[q] = us
-                tv[k] = tv[q] = vs
-                tt[k] = tt[q] = tk
-                if has_tup:
-                    ttup[k] = ttup[q] = tup[j]
-                slot_lo[s] = tk if tk < slot_lo[s] else slot_lo[s]
-                slot_hi[s] = tk if tk > slot_hi[s] else slot_hi[s]
-                nan_x |= xs != xs
-                nan_y |= ys != ys
-                a = abs(xs)
-                mx = a if a > mx else mx
-                a = abs(ys)
-                my = a if a > my else my
-                u_lo = us if us < u_lo else u_lo
-                u_hi = us if us > u_hi else u_hi
-                v_lo = vs if vs < v_lo else v_lo
-                v_hi = vs if vs > v_hi else v_hi
+                q0 = n + base + s * area
+                for p in range(area):
+                    k = base + p * spp + s
+                    q = q0 + p
+                    ax[q] = ax[k]
+                    ay[q] = ay[k]
+                    tu[q] = tu[k]
+                    tv[q] = tv[k]
+                    tt[q] = tt[k]
+            if has_tup:
+                for s in range(spp):
+                    q0 = n + base + s * area
+                    for p in range(area):
+                        ttup[q0 + p] = ttup[base + p * spp + s]
     stats[0] = np.nan if nan_x else mx
     stats[1] = np.nan if nan_y else my
     stats[2] = u_lo
