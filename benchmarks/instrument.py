@@ -21,7 +21,7 @@ swap them for the duration of one call and restore them afterwards.
   screen region's samples (made on a background thread while the region
   before is processed) and the resolves. These runs step every unit on the
   main thread (``simulation.run_ahead = 0``): the split is of the work, not
-  of a critical path that the run-ahead thread shortens.
+  of a critical path that the run-ahead threads shorten.
 """
 
 from __future__ import annotations

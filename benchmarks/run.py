@@ -129,9 +129,9 @@ unless said otherwise:
    Writes ``convergence.csv``.
 
 12. ("per_sample" section) Cost per sample: the default scene at 256 spp,
-   in nanoseconds per sample end to end, with the tile test and the sample
-   tester on the run-ahead thread (as shipped, ``simulation.run_ahead = 2``)
-   and on one thread, timed alternately; then instrumented
+   in nanoseconds per sample end to end, with the tile test, the sample
+   tester and shading on run-ahead threads (as shipped,
+   ``simulation.run_ahead = 2``) and on one thread, timed alternately; then instrumented
    as in 2 (on one thread), per part
    (tile test, z-cull, tester, shading, ROP, the z-cull refresh, sample
    generation: in wall time the main thread's waits for a region's samples,
@@ -468,7 +468,7 @@ def bench_per_sample(cfg: dict) -> dict:
     out["instrumented_ns_per_sample"] = 1e9 * out["instrumented_total_s"] / samples
     out["instrumented_ns_per_sample_cpu"] = 1e9 * out["instrumented_total_cpu_s"] / samples
     # uninstrumented passes on one thread (simulation.run_ahead = 0, as the instrumented runs) and with the
-    # tile test and the sample tester on the run-ahead thread, alternately; "as shipped" is the default's
+    # tile test, the sample tester and shading on run-ahead threads, alternately; "as shipped" is the default's
     depth = cfg["per_sample"]["run_ahead"]
     variants = {"one_thread": 0, "run_ahead": depth}
     log(f"per sample: {cfg['per_sample']['plain']} plain runs each, one thread and run-ahead, alternately")
@@ -790,8 +790,9 @@ def report(results: dict) -> tuple[str, list[dict]]:
                    f"({ps['samples']:,} samples; issue 19 goal: under 50 ns a sample)")
         out.append(f"   {ps['ns_per_sample']:.1f} ns a sample wall ({ps['ns_per_sample_cpu']:.1f} CPU) as shipped; "
                    f"on one thread {ps['one_thread_ns_per_sample']:.1f} ns ({ps['one_thread_s']:.2f} s a pass), with "
-                   f"the tile test and the sample tester up to {ps['run_ahead_depth']} batches ahead on a second "
-                   f"thread (simulation.run_ahead) {ps['run_ahead_ns_per_sample']:.1f} ns ({ps['run_ahead_s']:.2f} s); "
+                   f"the tile test, the sample tester and shading up to {ps['run_ahead_depth']} batches ahead on "
+                   f"threads of their own (simulation.run_ahead) {ps['run_ahead_ns_per_sample']:.1f} ns "
+                   f"({ps['run_ahead_s']:.2f} s); "
                    f"medians of {n_plain} plain runs each, alternately")
         out.append(f"   where the work goes, one thread, median of {results['config']['instrumented']} instrumented "
                    f"runs: {ps['instrumented_ns_per_sample']:.1f} ns a sample wall "

@@ -2,7 +2,7 @@
 
 A pass allocates and frees large arrays (a screen region's samples, the
 multisample buffers, the sample tester's tile-major copies), and the threads
-of a pass (the run-ahead thread, sample generation's) are new in each pass.
+of a pass (the run-ahead threads, sample generation's) are new in each pass.
 With glibc's default malloc, an array above the mmap threshold is mapped on
 allocation and unmapped when freed, and a thread's arena gives its free top
 back, so the next region or pass touches fresh pages again; a page touched

@@ -19,13 +19,13 @@ counters are declared timing-dependent (docs/pipeline.md §4).
 first, in submission order, and hands ``simulate`` stages that replay what
 each step returned.
 
-A stage whose step depends only on its batch (``Stage.ahead``; the tile test
-and the sample tester) may run its steps before the simulation reaches
-them: ``simulate`` starts the step of each batch that enters the stage's
-FIFO on a second thread, in FIFO order and at most ``run_ahead`` batches
-ahead, and the stage takes the result when it gets to the batch. The numba kernels release the
-interpreter lock, so one unit's kernel runs beside the others' and the SimPy
-layer on another core. The stage steps the same batches in the same order
+A stage whose step depends only on its batch (``Stage.ahead``; the tile test,
+the sample tester and shading) may run its steps before the simulation
+reaches them: ``simulate`` starts the step of each batch that enters the
+stage's FIFO on a thread of the stage's own, in FIFO order and at most
+``run_ahead`` batches ahead, and the stage takes the result when it gets to
+the batch. The numba kernels release the interpreter lock, so one unit's
+kernel runs beside the others' and the SimPy layer on another core. The stage steps the same batches in the same order
 either way: images, counters and cycles do not change.
 """
 
@@ -155,7 +155,7 @@ class Stage:
     name: str
     step: Callable[[Any], tuple[list[Any], float]]  # batch -> (output batches, cycles)
     latency: int
-    # whether the step of a batch in the stage's FIFO may start now, on the run-ahead thread (None: never):
+    # whether the step of a batch in the stage's FIFO may start now, on the stage's run-ahead thread (None: never):
     # true only when the step then depends on nothing but the batch and the steps before it
     ahead: Callable[[Any], bool] | None = None
     busy: float = 0.0
@@ -185,7 +185,7 @@ def _put(env: simpy.Environment, stage: Stage, out: Channel, item: Any):
 
 
 class _RunAhead:
-    """The steps of one stage (``Stage.ahead``) started early on the run-ahead thread.
+    """The steps of one stage (``Stage.ahead``) started early on its run-ahead thread (``pool``).
 
     The batches are numbered in the order they enter the stage's FIFO, which
     is the order the stage steps them. Steps start in that order, at most
@@ -310,7 +310,7 @@ def simulate(stages: list[Stage], source_batches: list[Any], queue_depth: int,
     Each channel (the input of each stage) holds ``queue_depth`` batches, or,
     with ``capacities``, that many records (one number per stage input); its
     capacity and occupancy are reported in that unit. ``run_ahead``: how many
-    batches a stage with ``ahead`` may have started on the run-ahead thread
+    batches a stage with ``ahead`` may have started on its run-ahead thread
     (0: none, every step runs when the simulation reaches it).
     """
     env = simpy.Environment()
@@ -320,17 +320,19 @@ def simulate(stages: list[Stage], source_batches: list[Any], queue_depth: int,
     else:
         channels = [Channel(n, Fifo(env, cap, by_records=True)) for n, cap in zip(names, capacities)]
     env.process(_source_process(env, source_batches, channels[0]))
-    early = [s.ahead is not None for s in stages]
-    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="run-ahead") if run_ahead and any(early) else None
+    # a thread of its own for each stage that may run ahead
+    pools = [ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"run-ahead-{s.name}")
+             if run_ahead and s.ahead is not None else None for s in stages]
     for i, stage in enumerate(stages):
         out = channels[i + 1] if i + 1 < len(channels) else None
-        ahead = _RunAhead(stage, channels[i].store, pool, run_ahead) if pool is not None and early[i] else None
+        ahead = _RunAhead(stage, channels[i].store, pools[i], run_ahead) if pools[i] is not None else None
         env.process(_stage_process(env, stage, channels[i], out, ahead))
     try:
         env.run()
     finally:
-        if pool is not None:
-            pool.shutdown(wait=True, cancel_futures=True)
+        for pool in pools:
+            if pool is not None:
+                pool.shutdown(wait=True, cancel_futures=True)
             for ch in channels:  # a FIFO and its run-ahead refer to each other: without this the pass's
                 ch.store.on_admit = None  # units and buffers would live until a garbage collection
     frame = float(env.now)

@@ -70,6 +70,8 @@ BYTES = {
     # sample, depth, three barycentrics, noread: 29 B), written and then
     # copied to its exact size
     "sample_record": 2 * 29,
+    # a shaded sample's RGBA colour (float32), of a batch shaded ahead
+    "shaded_sample": 16,
     # a tile of the frame in z-cull: zmin and zmax per (t, u, v) box
     # (float32 each, boxes counted below), and its refresh state (9 B)
     "zcull_box": 2 * 4,
@@ -126,10 +128,12 @@ def estimate_memory(width: int, height: int, spp: int, triangles: int, arch: Arc
     # in flight: one triangle batch's tile records, each of its triangles
     # reaching at most every tile of the region; one tile batch's covered
     # samples, at most its tiles' samples and at most a region's, and as many
-    # more as the sample tester may have tested ahead (simulation.run_ahead)
+    # more as the sample tester may have tested ahead (simulation.run_ahead);
+    # the colours of the sample batches shading may have shaded ahead
     tiles = min(sim.triangles_per_batch, max(triangles, 1)) * region_tiles * BYTES["tile_record"]
     samples = ((1 + sim.run_ahead) * min(sim.tiles_per_batch * ts * ts * spp, region_samples)
-               * BYTES["sample_record"])
+               * BYTES["sample_record"]
+               + sim.run_ahead * min(sim.samples_per_batch, region_samples) * BYTES["shaded_sample"])
     # z-cull's boxes cover the whole frame, as many per tile as motion and a
     # lens may need (the estimate does not know yet whether the draw has them)
     boxes = arch.zcull.time_slices * arch.zcull.lens_boxes**2

@@ -385,9 +385,11 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     if conservative:
         bypassed.add("sample_tester")
     # steps that depend only on their batch may run ahead of the simulation (pipeline.py): the tile test's
-    # (its batch's clip planes are set in its step), and the sample tester's in the region whose samples it
-    # holds (its cursor moves to the next region when the simulation brings it that region's first batch)
-    ahead = {"tile_test": lambda batch: True, "sample_tester": lambda batch: batch.region == tester_at.region}
+    # (its batch's clip planes are set in its step), and the sample tester's and shading's (whose cache only
+    # its own steps change, in order) in the region whose samples they hold (a cursor moves to the next
+    # region when the simulation brings it that region's first batch)
+    ahead = {"tile_test": lambda batch: True, "sample_tester": lambda batch: batch.region == tester_at.region,
+             "shading": (lambda batch: True) if conservative else lambda batch: batch.region == shading_at.region}
     stages = [Stage(name, fn, lat, ahead=ahead.get(name)) for name, fn, lat in stage_defs if name not in bypassed]
     ids = np.arange(draw.n, dtype=np.int64)
     if presetup:

@@ -569,28 +569,35 @@ def test_frame_cycles_converge_as_batches_shrink(draw):
 
 @pytest.mark.parametrize("regions", [0, 2048])
 def test_run_ahead_changes_nothing_but_the_thread(draw, regions, monkeypatch):
-    """The tile test and the sample tester stepped ahead on a second thread (at depths 1, 2 (the default)
-    and 8) or on the main thread: the same image, every counter (the timing-dependent ones too), cycles
-    and timing, in one screen region or in several (the tester does not run ahead into the next region)."""
+    """The tile test, the sample tester and shading stepped ahead, each on a thread of its own (at depths
+    1, 2 (the default) and 8), or on the main thread: the same image, every counter (the timing-dependent
+    ones too; the shading cache's follow the order of its lookups), cycles and timing, in one screen
+    region or in several (the tester and shading do not run ahead into the next region)."""
     from units.sample_tester import SampleTester
+    from units.shading_cache import Shading
 
-    threads = []
-    tester_run = SampleTester.run
-    monkeypatch.setattr(SampleTester, "run", lambda self, tiles: (threads.append(threading.current_thread().name),
-                                                                  tester_run(self, tiles))[1])
+    threads = {"sample_tester": [], "shading": []}
+    for cls, unit in ((SampleTester, "sample_tester"), (Shading, "shading")):
+        def run(self, batch, _run=cls.run, _log=threads[unit]):
+            _log.append(threading.current_thread().name)
+            return _run(self, batch)
+        monkeypatch.setattr(cls, "run", run)
 
     def result(run_ahead):
         settings = [f"simulation.run_ahead={run_ahead}", f"simulation.region_samples={regions}",
-                    "simulation.tiles_per_batch=16"]
-        threads.clear()
+                    "simulation.tiles_per_batch=16", "simulation.samples_per_batch=256"]
+        for log in threads.values():
+            log.clear()
         res = run_pass(RenderPass(draw=draw, **pass_settings(settings), spp=SPP))
-        ahead = sum(name.startswith("run-ahead") for name in threads)
-        assert ahead > len(threads) // 2 if run_ahead else ahead == 0  # where the tester's batches ran
+        for unit, names in threads.items():  # where each unit's batches ran
+            ahead = sum(name.startswith(f"run-ahead-{unit}") for name in names)
+            assert ahead > len(names) // 2 if run_ahead else ahead == 0, (unit, ahead, len(names))
         return res
 
     one_thread = result(0)
     assert one_thread.regions.count == (1 if regions == 0 else 3)
     assert one_thread.timing.units.set_index("unit").loc["sample_tester"].batches > 40
+    assert one_thread.timing.units.set_index("unit").loc["shading"].batches > 40
     for run_ahead in (1, 2, 8):
         res = result(run_ahead)
         np.testing.assert_array_equal(res.image, one_thread.image)

@@ -167,11 +167,13 @@ def test_estimate_terms_follow_the_settings():
     big = estimate_memory(8192, 8192, 16, 1000, arch)
     assert big.parts["region samples"] <= SimOptions().region_samples * preflight.BYTES["region_sample"]
     assert estimate_memory(320, 180, 16, 1000, arch, images=3).parts["image"] == 3 * small.parts["image"]
-    # the sample tester's outputs of the batches it tested ahead are held too
+    # the sample tester's outputs of the batches it tested ahead are held too, and the colours of the
+    # sample batches shading shaded ahead (at most a region's samples each)
     covered = 512 * 4 * 4 * 16 * preflight.BYTES["sample_record"]  # one tile batch's samples
+    shaded = min(65536, 320 * 180 * 16) * preflight.BYTES["shaded_sample"]  # one sample batch's colours
     one_thread = estimate_memory(320, 180, 16, 1000, arch, sim=SimOptions(run_ahead=0))
     ahead = estimate_memory(320, 180, 16, 1000, arch, sim=SimOptions(run_ahead=2))
-    assert ahead.parts["in flight"] - one_thread.parts["in flight"] == 2 * covered
+    assert ahead.parts["in flight"] - one_thread.parts["in flight"] == 2 * (covered + shaded)
 
 
 def test_png_conversion_takes_no_float_copy_of_the_whole_image():
