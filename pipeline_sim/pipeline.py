@@ -333,8 +333,8 @@ def simulate(stages: list[Stage], source_batches: list[Any], queue_depth: int,
         for pool in pools:
             if pool is not None:
                 pool.shutdown(wait=True, cancel_futures=True)
-            for ch in channels:  # a FIFO and its run-ahead refer to each other: without this the pass's
-                ch.store.on_admit = None  # units and buffers would live until a garbage collection
+        for ch in channels:  # a FIFO and its run-ahead refer to each other: without this the pass's
+            ch.store.on_admit = None  # units and buffers would live until a garbage collection
     frame = float(env.now)
     for ch in channels:
         ch.record(frame)

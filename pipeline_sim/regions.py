@@ -132,12 +132,16 @@ class RegionSamples:
     region the pipeline skips after all (its tiles were all culled) has its
     set dropped when a later one is requested. This holds up to ``keep + 1``
     regions' samples at once, and it changes no value: the same function
-    makes the same set.
+    makes the same set. ``prepare``, if given, runs on each set made ahead,
+    on the same thread, before it is handed out (the sample tester lays its
+    samples out there); a set made on request is handed out as made.
     """
 
-    def __init__(self, plan: RegionPlan, make: Callable[[tuple[int, int]], SampleSet], keep: int = 3):
+    def __init__(self, plan: RegionPlan, make: Callable[[tuple[int, int]], SampleSet], keep: int = 3,
+                 prepare: Callable[[SampleSet], SampleSet] | None = None):
         self.plan = plan
         self._make = make
+        self._prepare = prepare
         self._keep = keep
         self._sets: OrderedDict[int, SampleSet] = OrderedDict()
         self._visits: list[int] = []  # sorted: regions are visited in increasing order
@@ -176,7 +180,11 @@ class RegionSamples:
             return
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="region-samples")
-        self._pending[region] = self._pool.submit(self._make, self.plan.bounds(region))
+        self._pending[region] = self._pool.submit(self._make_ahead, self.plan.bounds(region))
+
+    def _make_ahead(self, rows: tuple[int, int]) -> SampleSet:
+        s = self._make(rows)
+        return s if self._prepare is None else self._prepare(s)
 
     def close(self) -> None:
         """Drop the sets and stop the background thread (waiting for a set it is making)."""

@@ -175,25 +175,21 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     spp = 1 if conservative else p.spp
     pattern = "table" if p.sample_table is not None else state.sample_pattern
 
-    # the sample tester's layout of a region's samples is made with them, on the thread that makes the next
-    # region's ahead (a conservative pass tests no samples)
-    layouts = TileMajorLayouts(ts)
-
     def made(rows: tuple[int, int]):
         return make_samples(draw.width, draw.height, spp, p.seed, lens=lens, motion=motion, pattern=pattern,
                             table=p.sample_table, scramble_table=p.scramble_table,
                             interleave_tuples=state.interleave_tuples, rows=rows)
 
-    def region_samples(rows: tuple[int, int]):
-        return made(rows) if conservative else layouts.prepare(made(rows))
-
     cached_shading = state.shading_mode == "cache" and not conservative
     step = row_step(ts, arch.tile_traverser.coarse_factor, state.shading_rate if cached_shading else None)
     plan = plan_regions(draw.width, draw.height, spp, p.simulation.region_samples, step)
     # a region's samples are made when a unit first needs them (a region with triangles may get no batch:
-    # the default scene's top one), and each next region's while the one before runs; the pattern's
-    # shared (u, v, t) tuples (Interleave UVT) come with a set of no rows
-    samples = RegionSamples(plan, region_samples)
+    # the default scene's top one), and each next region's while the one before runs, with the sample
+    # tester's layout of them (a conservative pass tests no samples; a set made on request is laid out
+    # by the tester on its first batch there); the pattern's shared (u, v, t) tuples (Interleave UVT) and
+    # the check of a sample table come with a set of no rows
+    layouts = TileMajorLayouts(ts)
+    samples = RegionSamples(plan, made, prepare=None if conservative else layouts.prepare)
     tuples = made((0, 0)).tuples
     algorithm = culling.algorithm(arch.tile_test.algorithm)
     if algorithm.NEEDS_TUPLES and tuples is None:

@@ -882,6 +882,7 @@ def make_samples(
         r0 = _check_int("rows[0]", rows[0], 0, height)
         r1 = _check_int("rows[1]", rows[1], r0, height)
 
+    arr = _validate_table(table, spp) if pattern == "table" else None  # (a set of no rows checks it too)
     nrows = r1 - r0
     npix = width * nrows
     n = npix * spp
@@ -917,7 +918,6 @@ def make_samples(
             _run_chunked(_sobol_kernel, p0, npix, spp, m, key, sobol_points(m), lens, motion, square,
                          ox, oy, ou, ov, ot)
         else:
-            arr = _validate_table(table, spp)
             arr = arr[np.argsort(arr[:, 4], kind="stable")]
             _run_chunked(_table_kernel, p0, npix, spp, key, arr, scramble_table, lens,
                          motion, ox, oy, ou, ov, ot)

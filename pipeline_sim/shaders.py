@@ -2,7 +2,7 @@
 
 A shader shades a batch of shading points at once::
 
-    @numba.njit(cache=True)
+    @numba.njit(cache=True, nogil=True)
     def my_shader(inputs, params, textures, out, append):
         # inputs:   float32[N_INPUTS, K], one row per input named in INPUTS
         # params:   float32[:], the pass's shader parameters
@@ -21,6 +21,12 @@ texel), ``sample_texture`` (bilinear RGBA), ``project`` (a point through a
 layer of a texture array gives a per-tuple projection), ``compare_layer``
 (a depth comparison over a texel neighbourhood, percentage-closer);
 ``append_record`` appends a record to the append buffer.
+
+A pass may run its shader on a thread of shading's own (``simulation.run_ahead``),
+its batches in order and one at a time, as on the main thread: a shader must
+compute from its arguments only (not numba's ``np.random``, whose state is
+per thread, nor state kept between calls), and ``nogil=True`` lets it run
+beside the other units.
 
 Workloads bring their own shaders in the same form. In standard mode the
 inputs describe the surface point (world position, normal, color at the
@@ -53,7 +59,7 @@ def standard_params(light) -> np.ndarray:
     return np.array([kind, *vec, *rgb, light.ambient], dtype=np.float32)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def standard_shader(inputs, params, textures, out, append):
     """Flat (material 0: unlit color) or Lambert (material 1) with one light."""
     kind = params[0]
@@ -87,7 +93,7 @@ def standard_shader(inputs, params, textures, out, append):
         out[i, 3] = 1.0
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def depth_shader(inputs, params, textures, out, append):
     """Writes the sample depth z/w to every channel (depth and shadow maps)."""
     for i in range(inputs.shape[1]):
@@ -98,7 +104,7 @@ def depth_shader(inputs, params, textures, out, append):
         out[i, 3] = 1.0
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def interval_shader(inputs, params, textures, out, append):
     """Conservative mode: writes (t_lo, z_lo, t_hi, z_hi) of the pixel's tile test
     (the tz-box of Nilsson12 §3 continuous collision detection)."""

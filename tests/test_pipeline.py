@@ -607,3 +607,28 @@ def test_run_ahead_changes_nothing_but_the_thread(draw, regions, monkeypatch):
         pd.testing.assert_frame_equal(res.timing.queues, one_thread.timing.queues)
         assert res.timing.traces == one_thread.timing.traces
         assert res.region_samples_made == one_thread.region_samples_made
+
+
+def test_conservative_shading_ahead_changes_nothing_but_the_thread(draw, monkeypatch):
+    """Conservative rasterization (no sample tester; shading runs once per tile record, reading no
+    samples) with shading stepped ahead on its own thread: the image, counters and timing of one thread."""
+    from units.shading_cache import Shading
+
+    names = []
+    run = Shading.run
+    monkeypatch.setattr(Shading, "run", lambda self, batch: (names.append(threading.current_thread().name),
+                                                             run(self, batch))[1])
+
+    def result(run_ahead):
+        names.clear()
+        settings = pass_settings([f"simulation.run_ahead={run_ahead}", "pass.mode=conservative",
+                                  "simulation.tiles_per_batch=16"])
+        return run_pass(RenderPass(draw=draw, **settings, spp=SPP)), list(names)
+
+    (one, one_names), (ahead, ahead_names) = result(0), result(2)
+    assert "sample_tester" not in one.units_used and len(one_names) > 20
+    assert not any(n.startswith("run-ahead") for n in one_names)
+    assert sum(n.startswith("run-ahead-shading") for n in ahead_names) > len(ahead_names) // 2
+    np.testing.assert_array_equal(ahead.image, one.image)
+    pd.testing.assert_frame_equal(ahead.counters, one.counters)
+    pd.testing.assert_frame_equal(ahead.timing.units, one.timing.units)

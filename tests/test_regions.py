@@ -118,17 +118,21 @@ def test_the_next_region_to_visit_is_made_ahead_on_another_thread_with_the_same_
     assert regions.made == 3
 
 
-def test_no_region_is_made_before_the_first_request():
+def test_no_region_is_made_before_the_first_request_and_only_those_made_ahead_are_prepared():
     """Regions with triangles may still get no batch (their tiles all culled): none is made on the
     word of ``will_visit`` alone, only once a unit asks for it; the next one to visit is then made
-    ahead."""
-    made_on = {}
+    ahead and ``prepare`` runs on it there, not on a set made on request."""
+    made_on, prepared_on = {}, {}
 
     def make(rows):
         made_on[rows[0] // 16] = threading.current_thread().name
         return make_samples(8, 64, 4, 1, lens=False, motion=True, rows=rows)
 
-    regions = RegionSamples(RegionPlan(8, 64, 16), make, keep=1)
+    def prepare(s):
+        prepared_on[s.row0 // 16] = threading.current_thread().name
+        return s
+
+    regions = RegionSamples(RegionPlan(8, 64, 16), make, keep=1, prepare=prepare)
     regions.will_visit([0, 1, 3])
     try:
         assert made_on == {}
@@ -136,6 +140,7 @@ def test_no_region_is_made_before_the_first_request():
     finally:
         regions.close()
     assert made_on == {1: threading.current_thread().name, 3: made_on[3]} and made_on[3].startswith("region-samples")
+    assert prepared_on == {3: made_on[3]}
     assert regions.made == 2
 
 
@@ -280,6 +285,9 @@ def test_units_hold_the_region_of_every_batch_they_run(root, monkeypatch, case, 
 
     for name, cls in (("SampleTester", Tester), ("Shading", Shading), ("Rop", Rop)):
         monkeypatch.setattr(render, name, cls)
+    made = []  # the rows of every sample set made
+    make = render.make_samples
+    monkeypatch.setattr(render, "make_samples", lambda *a, rows, **k: (made.append(rows), make(*a, rows=rows, **k))[1])
     scene = _small(root, "default", width=120, height=72, spp=4)
     res = render_scene(scene, **_settings(CASES[case], 120 * 20, zcull=True), zcull_refresh=refresh)  # 16-20 rows
     plan = res.regions
@@ -292,3 +300,6 @@ def test_units_hold_the_region_of_every_batch_they_run(root, monkeypatch, case, 
             assert rows in bounds
             assert rows[0] <= record_rows.min() and record_rows.max() < rows[1], (unit, rows)
         assert len({rows for rows, _ in log}) > 1, unit  # regions without records are skipped
+    # the samples of a region no unit ran a batch in are never made (the top region has triangles, no batch)
+    used = {rows for log in held.values() for rows, _ in log}
+    assert {rows for rows in made if rows[1] > rows[0]} <= used and bounds[0] not in used

@@ -308,6 +308,8 @@ def test_bad_table_raises(row, col, value, fragment):
     tab[row, col] = value
     with pytest.raises(UserError, match=fragment):
         make_samples(2, 2, 8, 0, lens=True, motion=True, pattern="table", table=tab)
+    with pytest.raises(UserError, match=fragment):  # a set of no rows checks the table too (a pass does so first)
+        make_samples(2, 2, 8, 0, lens=True, motion=True, pattern="table", table=tab, rows=(0, 0))
 
 
 def test_bad_parameters_raise():

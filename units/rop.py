@@ -261,7 +261,8 @@ class Rop:
                 img[:] = self.clears[j]
             if t.resolve == "none" and not self.one_region:  # (a region no sample reaches keeps the clear)
                 self.frame_samples[t.name] = np.empty((width * height * spp, self.channels[j]), np.float32)
-                self.frame_samples[t.name][:] = self.clears[j]
+                self.frame_samples[t.name].view(np.dtype((np.void, self.clears[j].nbytes))).fill(
+                    self.clears[j].tobytes())
         first = self.targets[0]
         if first.resolve == "box":
             self.image = self.images[first.name][0]

@@ -1079,7 +1079,7 @@ class TileMajorLayouts:
     it again. Thread-safe.
     """
 
-    KEEP_FREE = 2  # released buffer sets kept for reuse
+    KEEP_FREE = 1  # released buffer sets kept for reuse (the next region's layout takes one)
 
     def __init__(self, tile_size: int):
         self.tile_size = tile_size

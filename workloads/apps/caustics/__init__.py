@@ -258,7 +258,7 @@ def to_pixels(clip: np.ndarray, width: int, height: int) -> np.ndarray:
                      (1.0 - clip[..., 1] / clip[..., 3]) * 0.5 * height], axis=-1)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def receiver_shader(inputs, params, textures, out, append):
     """The floor point each pixel's centre sees: its world position and a flag 1 (Nilsson12 §4's receiver)."""
     for i in range(inputs.shape[1]):
@@ -304,7 +304,7 @@ def triangle_square_area(ax, ay, bx, by, cx, cy, x0, x1, y0, y1):
     return 0.5 * abs(s)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def light_shader(inputs, params, textures, out, append):
     """One (beam, pixel) of a conservative xyt pass (Nilsson12 §4): where the pixel's time interval reaches
     the beam's end section (t = 1, the only section on the floor), the beam's irradiance (``params``: per beam

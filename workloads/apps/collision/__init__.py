@@ -299,7 +299,7 @@ def box_pass(a: Body, b: Body, axis: int, resolution: int, arch, name: str):
                       shader=interval_shader, outputs=(ShaderOutput("box", 4),), targets=targets)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def fragment_shader(inputs, params, textures, out, append):
     """Each (triangle, pixel) tz-box of the second object against the first object's union box at the
     pixel (``textures[0]``, t_lo, z_lo, t_hi, z_hi): Nilsson12 §3, Fig. 5 right, and the CULLIDE
@@ -347,7 +347,7 @@ def fragment_pass(a: Body, b: Body, axis: int, resolution: int, arch, name: str,
 FRAGMENT_FIELDS = ("object", "x", "y", "t_lo", "z_lo", "t_hi", "z_hi")
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def fragment_record_shader(inputs, params, textures, out, append):
     """Conservative mode: writes each (triangle, pixel)'s tz-box (t_lo, z_lo, t_hi, z_hi) of the tile
     test (Nilsson12 §3) and appends it with the triangle's object and the pixel (``FRAGMENT_FIELDS``):

@@ -266,14 +266,14 @@ def _surface_shader(inputs, params, textures, reflection, below, out, append, re
                 out[i, c] = f * reflected[c] + (1.0 - f) * out[i, c]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def reflection_shader(inputs, params, textures, out, append):
     """A glossy reflector: its own shading under the reflection texture ``textures[0]``
     (:func:`_surface_shader`)."""
     _surface_shader(inputs, params, textures, textures[0], textures[0], out, append, False)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def refraction_shader(inputs, params, textures, out, append):
     """A rough transparent surface: the reflection texture ``textures[0]`` over the refraction texture
     ``textures[1]`` (:func:`_surface_shader`)."""

@@ -151,7 +151,7 @@ def _in_slab(t: float, hi: float) -> bool:
     return t < hi or hi >= 1.0
 
 
-@nb.njit
+@nb.njit(nogil=True)
 def append_shader(inputs, params, textures, out, append):
     """Nilsson12 §5, the volumetric sampler: appends every covered sample (``RECORD``) of its slab
     (``params[object]``: the upper t bound of the triangle's slab) and counts it in ``out``."""
@@ -251,7 +251,7 @@ def torus_prisms(s: Settings) -> tuple[list[tuple[np.ndarray, np.ndarray, float,
     return prisms, scale, width
 
 
-@nb.njit
+@nb.njit(nogil=True)
 def torus_shader(inputs, params, textures, out, append):
     """Nilsson12 §5, Fig. 9: a sample of the bounding prisms inside the torus adds (1, x^2 + y^2, z^2,
     (x^2 + y^2)^2, z^4) (the integrands and their squares, for the standard errors), else zeros.
@@ -545,7 +545,7 @@ def density_cells(rho: np.ndarray, cell: int, levels: int) -> dict[int, np.ndarr
     return {k: np.array(v, float) for k, v in sorted(cells.items())}
 
 
-@nb.njit
+@nb.njit(nogil=True)
 def density_shader(inputs, params, textures, out, append):
     """Nilsson12 §5, Fig. 12: a sample (x, y, t) under the height field (t below the density of its pixel,
     ``textures[0]``) is appended (``RECORD``); the others are rejected."""

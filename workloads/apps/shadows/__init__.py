@@ -237,7 +237,7 @@ def make_draw(meshes: list[Mesh], camera: Camera, width: int, height: int, *, le
                                material=np.ones(draw.n, np.int32))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def shadow_shader(inputs, params, textures, out, append):
     """Nilsson12 §7: a sample with tuple k puts its surface point (at its own time t_k, moved by the normal
     offset along its normal) through projection k (``params[HEADER + 16 k:]``, the light camera at light
