@@ -478,3 +478,30 @@ def test_layouts_prepared_on_another_thread_equal_those_built_in_place_and_reuse
     assert any(np.shares_memory(x, b) for b in free)
     with pytest.raises(ValueError, match="8-pixel tester"):
         SampleTester(None, None, None, 8, False, layouts=layouts)
+
+
+def test_layouts_prepared_while_the_tester_takes_and_releases_others_are_right():
+    """A thread prepares each next region's layout while the tester takes, reads and releases the
+    current one, as a pass does, over several rounds: every layout the tester reads equals one built
+    afresh, though the buffers go round between regions."""
+    import threading
+
+    from pipeline_sim.sampling import make_samples
+    from units.sample_tester import SampleTester, TileMajorLayouts
+
+    width, spp, ts = 13, 4, 4
+    sets = [make_samples(width, 40, spp, 7, lens=True, motion=True, rows=(r0, r0 + 8)) for r0 in range(0, 40, 8)]
+    want = [SampleTester(None, None, s, ts, False).layout() for s in sets]
+    for _ in range(5):
+        layouts = TileMajorLayouts(ts)
+        tester = SampleTester(None, None, None, ts, False, layouts=layouts)
+        for i, s in enumerate(sets):
+            ahead = threading.Thread(target=layouts.prepare, args=(sets[i + 1],)) if i + 1 < len(sets) else None
+            tester.use_samples(s)  # releases the layout of the region before
+            if ahead is not None:
+                ahead.start()
+            got = tester.layout()
+            for a, b in zip(got, want[i]):
+                np.testing.assert_array_equal(a, b)
+            if ahead is not None:
+                ahead.join()
