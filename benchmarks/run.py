@@ -187,7 +187,7 @@ FULL = {
     "ab_rounds": 5, "ab_runs": 5,
     "convergence": {"width": 160, "height": 90, "spp": [16, 32, 64, 128, 256, 512, 1024], "ref_spp": 8192,
                     "peer_max_passes": 1024, "peer_rounds": 3},
-    "per_sample": {"spp": 256, "plain": 5, "run_ahead": 2},
+    "per_sample": {"spp": 256, "plain": 5},
 }
 QUICK = {
     "pairs": 3, "instrumented": 1, "simpy_only": 3, "micro_repeats": 5, "scaling_repeats": 1,
@@ -203,7 +203,7 @@ QUICK = {
     "ab_rounds": 2, "ab_runs": 3,
     "convergence": {"width": 64, "height": 36, "spp": [16, 64, 256], "ref_spp": 2048, "peer_max_passes": 512,
                     "peer_rounds": 1},
-    "per_sample": {"spp": 64, "plain": 2, "run_ahead": 2},
+    "per_sample": {"spp": 64, "plain": 2},
 }
 # sections in the order they run; --only picks some
 SECTIONS = ("default", "tester", "scaling", "compile", "specialization", "batch", "frame", "patterns", "ab",
@@ -467,9 +467,9 @@ def bench_per_sample(cfg: dict) -> dict:
            **unit_breakdown(runs, float(np.median([w for w, _ in simpy])), float(np.median([c for _, c in simpy])))}
     out["instrumented_ns_per_sample"] = 1e9 * out["instrumented_total_s"] / samples
     out["instrumented_ns_per_sample_cpu"] = 1e9 * out["instrumented_total_cpu_s"] / samples
-    # uninstrumented passes on one thread (simulation.run_ahead = 0, as the instrumented runs) and with the
-    # tile test, the sample tester and shading on run-ahead threads, alternately; "as shipped" is the default's
-    depth = cfg["per_sample"]["run_ahead"]
+    # uninstrumented passes on one thread (simulation.run_ahead = 0, as the instrumented runs) and as shipped,
+    # with the tile test, the sample tester and shading on run-ahead threads, alternately
+    depth = p.simulation.run_ahead
     variants = {"one_thread": 0, "run_ahead": depth}
     log(f"per sample: {cfg['per_sample']['plain']} plain runs each, one thread and run-ahead, alternately")
     plain: dict[str, list] = {key: [] for key in variants}
@@ -484,9 +484,8 @@ def bench_per_sample(cfg: dict) -> dict:
         out[f"{key}_cpu_s"] = float(np.median([c for _, c in times]))
         out[f"{key}_ns_per_sample"] = 1e9 * out[f"{key}_s"] / samples
     out["run_ahead_depth"] = depth
-    shipped = "run_ahead" if p.simulation.run_ahead else "one_thread"
-    out["ns_per_sample"] = out[f"{shipped}_ns_per_sample"]
-    out["ns_per_sample_cpu"] = 1e9 * out[f"{shipped}_cpu_s"] / samples
+    out["ns_per_sample"] = out["run_ahead_ns_per_sample"]
+    out["ns_per_sample_cpu"] = 1e9 * out["run_ahead_cpu_s"] / samples
     for u in out["units"]:
         u["ns_per_sample"] = 1e9 * u["seconds"] / samples
     tester = float(np.median([tm.seconds["sample_tester"] for _, _, tm in runs]))

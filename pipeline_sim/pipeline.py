@@ -25,8 +25,9 @@ reaches them: ``simulate`` starts the step of each batch that enters the
 stage's FIFO on a thread of the stage's own, in FIFO order and at most
 ``run_ahead`` batches ahead, and the stage takes the result when it gets to
 the batch. The numba kernels release the interpreter lock, so one unit's
-kernel runs beside the others' and the SimPy layer on another core. The stage steps the same batches in the same order
-either way: images, counters and cycles do not change.
+kernel runs beside the others' and the SimPy layer on another core. The
+stage steps the same batches in the same order either way: images,
+counters and cycles do not change.
 """
 
 from __future__ import annotations

@@ -567,6 +567,17 @@ def test_frame_cycles_converge_as_batches_shrink(draw):
         assert r.counters.equals(results[4].counters)
 
 
+def _threads_of(monkeypatch, units: dict) -> dict[str, list[str]]:
+    """Record, per unit (name: class), the thread each of its ``run`` calls ran on."""
+    names = {unit: [] for unit in units}
+    for unit, cls in units.items():
+        def run(self, batch, _run=cls.run, _log=names[unit]):
+            _log.append(threading.current_thread().name)
+            return _run(self, batch)
+        monkeypatch.setattr(cls, "run", run)
+    return names
+
+
 @pytest.mark.parametrize("regions", [0, 2048])
 def test_run_ahead_changes_nothing_but_the_thread(draw, regions, monkeypatch):
     """The tile test, the sample tester and shading stepped ahead, each on a thread of its own (at depths
@@ -576,12 +587,7 @@ def test_run_ahead_changes_nothing_but_the_thread(draw, regions, monkeypatch):
     from units.sample_tester import SampleTester
     from units.shading_cache import Shading
 
-    threads = {"sample_tester": [], "shading": []}
-    for cls, unit in ((SampleTester, "sample_tester"), (Shading, "shading")):
-        def run(self, batch, _run=cls.run, _log=threads[unit]):
-            _log.append(threading.current_thread().name)
-            return _run(self, batch)
-        monkeypatch.setattr(cls, "run", run)
+    threads = _threads_of(monkeypatch, {"sample_tester": SampleTester, "shading": Shading})
 
     def result(run_ahead):
         settings = [f"simulation.run_ahead={run_ahead}", f"simulation.region_samples={regions}",
@@ -614,10 +620,7 @@ def test_conservative_shading_ahead_changes_nothing_but_the_thread(draw, monkeyp
     samples) with shading stepped ahead on its own thread: the image, counters and timing of one thread."""
     from units.shading_cache import Shading
 
-    names = []
-    run = Shading.run
-    monkeypatch.setattr(Shading, "run", lambda self, batch: (names.append(threading.current_thread().name),
-                                                             run(self, batch))[1])
+    names = _threads_of(monkeypatch, {"shading": Shading})["shading"]
 
     def result(run_ahead):
         names.clear()

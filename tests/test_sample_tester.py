@@ -389,6 +389,39 @@ def test_fast_paths_match_plain_loop_on_samples_on_shared_edges(motion, lens):
         assert ev["tests_5d" if motion else "tests_4d_xyuv"] == ev["samples_tested"]
 
 
+def _numpy_layout(s, ts):
+    """The tester's layout of sample set ``s`` built with numpy: (x, y, u, v, t) each pixel-major then
+    slot-major tile by tile (x, y absolute), each slot's t range, the u and v range (0 included) and
+    ``xy_max``."""
+    width = s.width
+    t = s.t.reshape(s.height, width, s.spp)
+    px = np.arange(width, dtype=np.float32)[None, :, None]
+    py = np.arange(s.row0, s.row0 + s.height, dtype=np.float32)[:, None, None]
+    fields = (s.x.reshape(t.shape) + px, s.y.reshape(t.shape) + py, s.u.reshape(t.shape), s.v.reshape(t.shape), t)
+    pixel_major, slot_major = ([[] for _ in fields] for _ in range(2))
+    for y0 in range(0, s.height, ts):
+        for x0 in range(0, width, ts):
+            for k, f in enumerate(fields):
+                block = f[y0:y0 + ts, x0:x0 + ts]  # (h, w, spp)
+                pixel_major[k].append(block.ravel())
+                slot_major[k].append(block.transpose(2, 0, 1).ravel())
+    arrays = [np.concatenate(a + b) for a, b in zip(pixel_major, slot_major)]
+    uv = [min(s.u.min(), 0), max(s.u.max(), 0), min(s.v.min(), 0), max(s.v.max(), 0)]
+    return (*arrays, t.min(axis=(0, 1)), t.max(axis=(0, 1)), uv,
+            float(max(np.abs(s.x).max(), np.abs(s.y).max())) * (1 + 1e-6))
+
+
+def _assert_layout(got, s, ts):
+    ax, ay, au, av, at, _, lo, hi, uv, xy_max = got
+    want = _numpy_layout(s, ts)
+    for a, b in zip((ax, ay, au, av, at), want[:5]):
+        assert a.tobytes() == b.tobytes()
+    np.testing.assert_array_equal(lo, want[5])
+    np.testing.assert_array_equal(hi, want[6])
+    np.testing.assert_array_equal(uv, want[7])
+    assert xy_max == want[8]
+
+
 def test_layout_orders_and_ranges_match_numpy():
     """``SampleTester.layout`` against numpy: both tile-major orders, each
     slot's t range and the samples' x, y, u, v ranges, for a region whose
@@ -402,29 +435,8 @@ def test_layout_orders_and_ranges_match_numpy():
     for rows in ((4, 15), (8, 14)):
         s = make_samples(width, 18, spp, 2, lens=True, motion=True, rows=rows)
         tester.use_samples(s)
-        ax, ay, au, av, at, _, lo, hi, uv, xy_max = tester.layout()
-        n = len(s.t)
-        assert len(at) == 2 * n
-        t = s.t.reshape(s.height, width, spp)
-        np.testing.assert_array_equal(lo, t.min(axis=(0, 1)))
-        np.testing.assert_array_equal(hi, t.max(axis=(0, 1)))
-        np.testing.assert_array_equal(uv, [min(s.u.min(), 0), max(s.u.max(), 0), min(s.v.min(), 0),
-                                           max(s.v.max(), 0)])
-        assert xy_max == float(max(np.abs(s.x).max(), np.abs(s.y).max())) * (1 + 1e-6)
-        px = np.arange(width, dtype=np.float32)[None, :, None]
-        py = np.arange(s.row0, s.row0 + s.height, dtype=np.float32)[:, None, None]
-        fields = (s.x.reshape(t.shape) + px, s.y.reshape(t.shape) + py, s.u.reshape(t.shape),
-                  s.v.reshape(t.shape), t)
-        k = 0
-        for y0 in range(0, s.height, ts):
-            for x0 in range(0, width, ts):
-                for got, want in zip((ax, ay, au, av, at), fields):
-                    block = want[y0:y0 + ts, x0:x0 + ts]  # (h, w, spp)
-                    m = block.size
-                    assert got[k:k + m].tobytes() == block.tobytes()  # pixel by pixel
-                    assert got[n + k:n + k + m].tobytes() == block.transpose(2, 0, 1).tobytes()  # slot by slot
-                k += m
-        assert k == n
+        assert len(tester.layout()[4]) == 2 * len(s.t)
+        _assert_layout(tester.layout(), s, ts)
 
 
 def test_layout_keeps_nan_rules():
@@ -448,7 +460,7 @@ def test_layout_keeps_nan_rules():
 
 def test_layouts_prepared_on_another_thread_equal_those_built_in_place_and_reuse_buffers():
     """``TileMajorLayouts``: a layout prepared on another thread (as a region's samples are made ahead)
-    is the one the tester takes, equal to a layout built afresh by a tester of its own; a released
+    is the one the tester takes, equal to the numpy layout; a released
     layout's buffers serve the next region's; layouts prepared for regions the tester has passed are
     released when it takes a later one."""
     import threading
@@ -464,10 +476,7 @@ def test_layouts_prepared_on_another_thread_equal_those_built_in_place_and_reuse
     worker.start()
     worker.join()
     tester.use_samples(sets[1])  # region 0 got no batch: its prepared layout is dropped on the next take
-    got = tester.layout()
-    want = SampleTester(None, None, sets[1], ts, False).layout()
-    for a, b in zip(got, want):
-        np.testing.assert_array_equal(a, b)
+    _assert_layout(tester.layout(), sets[1], ts)
     assert len(layouts._ready) == 1 and len(layouts._free) == 1  # region 2's waits; region 0's buffers free
     tester.use_samples(sets[2])
     tester.layout()
@@ -482,8 +491,8 @@ def test_layouts_prepared_on_another_thread_equal_those_built_in_place_and_reuse
 
 def test_layouts_prepared_while_the_tester_takes_and_releases_others_are_right():
     """A thread prepares each next region's layout while the tester takes, reads and releases the
-    current one, as a pass does, over several rounds: every layout the tester reads equals one built
-    afresh, though the buffers go round between regions."""
+    current one, as a pass does, over several rounds: every layout the tester reads equals the numpy
+    layout, though the buffers go round between regions."""
     import threading
 
     from pipeline_sim.sampling import make_samples
@@ -491,7 +500,6 @@ def test_layouts_prepared_while_the_tester_takes_and_releases_others_are_right()
 
     width, spp, ts = 13, 4, 4
     sets = [make_samples(width, 40, spp, 7, lens=True, motion=True, rows=(r0, r0 + 8)) for r0 in range(0, 40, 8)]
-    want = [SampleTester(None, None, s, ts, False).layout() for s in sets]
     for _ in range(5):
         layouts = TileMajorLayouts(ts)
         tester = SampleTester(None, None, None, ts, False, layouts=layouts)
@@ -500,8 +508,6 @@ def test_layouts_prepared_while_the_tester_takes_and_releases_others_are_right()
             tester.use_samples(s)  # releases the layout of the region before
             if ahead is not None:
                 ahead.start()
-            got = tester.layout()
-            for a, b in zip(got, want[i]):
-                np.testing.assert_array_equal(a, b)
+            _assert_layout(tester.layout(), s, ts)
             if ahead is not None:
                 ahead.join()
