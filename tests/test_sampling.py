@@ -8,6 +8,7 @@ Grünschloß-Keller matrices and by binomial closed forms written out here.
 from __future__ import annotations
 
 import itertools
+import math
 import time
 from math import comb
 
@@ -20,8 +21,12 @@ from scipy.stats import qmc
 from pipeline_sim.errors import UserError
 from pipeline_sim.sampling import (
     SampleSet,
+    _POLY_TOL,
     _argsort,
     _concentric_many,
+    _concentric_polar,
+    _same_float32,
+    _sincos_poly,
     concentric_disk,
     generator_matrices,
     grunschloss_keller_matrices,
@@ -375,10 +380,46 @@ def test_kernel_concentric_matches_public_and_square():
     a[:3], b[:3] = 0.5, [0.5, 0.25, 0.75]
     u1, v1 = concentric_disk(a, b)
     u2, v2 = _concentric_many(a, b)
-    assert np.allclose(u1, u2, atol=1e-15) and np.allclose(v1, v2, atol=1e-15)
+    assert np.allclose(u1, u2, rtol=0, atol=6e-8) and np.allclose(v1, v2, rtol=0, atol=6e-8)  # float32 rounding
     assert u1[0] == 0 and v1[0] == 0
     us, vs = map_lens(a, b, "square")
     assert np.allclose(us, 2 * a - 1) and np.allclose(vs, 2 * b - 1)
+
+
+def test_lens_polynomial_within_its_bound():
+    """The lens map's sin and cos polynomial against extended-precision sin and cos and against the C
+    library's (math.sin, math.cos) over its whole range of angles: the ends of both wedges, the reduction
+    threshold and random angles of 24-bit points. Its bound ``_POLY_TOL`` must hold with a wide margin (the
+    C library's own error is below one unit in the last place)."""
+    rng = np.random.default_rng(5)
+    ab = rng.integers(0, 1 << 24, (2, 20000)) / 2**24
+    phis = [_concentric_polar(a, b)[1] for a, b in ab.T]
+    ends = [-np.pi / 4, 0.0, np.pi / 4, np.pi / 4 + 1e-3, np.pi / 2, 3 * np.pi / 4]
+    phis = np.array(phis + [np.nextafter(e, d) for e in ends for d in (-np.inf, np.inf)] + ends)
+    phis = np.concatenate([phis, np.linspace(-np.pi / 4, 3 * np.pi / 4, 20001)])
+    got = np.array([_sincos_poly(p) for p in phis])
+    ld = phis.astype(np.longdouble)
+    libm = np.array([(math.sin(p), math.cos(p)) for p in phis])
+    for k, exact in ((0, np.sin(ld)), (1, np.cos(ld))):
+        assert np.max(np.abs(got[:, k] - exact)) < 2e-16
+        assert np.max(np.abs(got[:, k] - libm[:, k])) < _POLY_TOL / 32
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.integers(-4, 4))
+def test_same_float32_only_when_the_whole_bound_rounds_alike(r, w, shift):
+    """``_same_float32`` may say yes only when every value within the bound around ``w`` rounds to one
+    float32 of w's sign. Adversarial values too: w on a float32 rounding midpoint, or a few float64 steps
+    from one, where the answer must be no."""
+    f = np.float32(w)
+    mid = (np.float64(f) + np.float64(np.nextafter(f, np.float32(np.inf)))) / 2
+    for x in (w, np.float64(mid) + shift * np.spacing(mid)):
+        bound = abs(r) * _POLY_TOL + abs(x) * 2.0**-50
+        if _same_float32(r, x):
+            probes = [x + k * bound / 4 for k in range(-4, 5)]
+            assert len({np.float32(p).view(np.uint32).item() for p in probes}) == 1
+        if x == mid:
+            assert not _same_float32(r, x)
 
 
 # ---------------------------------------------------------------------------

@@ -135,13 +135,18 @@ def test_net5_equals_reference_across_thread_chunks():
 
 
 def test_kernel_concentric_map_equals_reference_bits():
-    """The kernels' branch-free concentric map (one sincos call) against the map by cases above, in float64
-    bits: the centre, both diagonals (where the wedges meet) and random 24-bit points."""
+    """The kernels' concentric map (branch-free angles, sin and cos by a polynomial, the C library's sincos
+    where the polynomial cannot settle the float32) against the map by cases above with the C library's cos
+    and sin, in float32 bits: the centre, both diagonals (where the wedges meet), points next to the axes
+    (results near zero, where the polynomial gives way) and random 24-bit points."""
     rng = np.random.default_rng(4)
     grid = np.arange(0, 1 << FRAC, 4099) / 2**FRAC
-    a = np.concatenate([[0.5], grid, grid, rng.integers(0, 1 << FRAC, 20000) / 2**FRAC])
-    b = np.concatenate([[0.5], grid, 1.0 - grid, rng.integers(0, 1 << FRAC, 20000) / 2**FRAC])
+    near = (np.arange(-300, 301) + (1 << (FRAC - 1))) / 2**FRAC  # 2a - 1 or 2b - 1 within 600 steps of 0
+    other = rng.integers(0, 1 << FRAC, near.size) / 2**FRAC
+    a = np.concatenate([[0.5], grid, grid, near, other, rng.integers(0, 1 << FRAC, 200000) / 2**FRAC])
+    b = np.concatenate([[0.5], grid, 1.0 - grid, other, near, rng.integers(0, 1 << FRAC, 200000) / 2**FRAC])
     u, v = _concentric_many(a, b)
-    want = np.array([concentric(x, y) for x, y in zip(a, b)])
-    assert np.array_equal(u.view(np.uint64), want[:, 0].view(np.uint64))
-    assert np.array_equal(v.view(np.uint64), want[:, 1].view(np.uint64))
+    want = np.array([concentric(x, y) for x, y in zip(a, b)]).astype(np.float32)
+    assert u.dtype == v.dtype == np.float32
+    assert np.array_equal(u.view(np.uint32), want[:, 0].view(np.uint32))
+    assert np.array_equal(v.view(np.uint32), want[:, 1].view(np.uint32))
