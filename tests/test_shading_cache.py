@@ -236,17 +236,24 @@ def test_cell_keys_against_float64_keys(rate):
     (triangle << 42 | (cy + 2^20) << 21 | (cx + 2^20)); a sample behind the reference camera has none (-1)."""
     rng, ref = _setup(31, ntri=10, size=9.0, rate=rate)
     ref[::2, :, :2] -= 30 * ref[::2, :, 2:]  # half of them 30 pixels left of and above the screen: negative cells
-    ref = np.concatenate([ref, -ref[:2]])  # two triangles behind the reference camera (W < 0)
+    far = ref[:1].copy()
+    far[:, :, :2] += 2.0**22 * far[:, :, 2:]  # in front, but 2^22 pixels off screen: beyond the grid's cells
+    ref = np.concatenate([ref, -ref[:2], far])  # two triangles behind the reference camera (W < 0)
     tri, b0, b1, b2, keys = make_stream(rng, ref[:10], 400, rate)
+    order = np.argsort(tri, kind="stable")[: len(tri) // 2]  # half the stream in runs of one triangle
+    tri, b0, b1, b2 = (np.concatenate([a[order], a]) for a in (tri, b0, b1, b2))
+    keys = [keys[i] for i in order] + list(keys)
     behind = rng.random(len(tri)) < 0.1
     tri[behind] = 10 + rng.integers(0, 2, behind.sum())
+    off = ~behind & (rng.random(len(tri)) < 0.05)
+    tri[off] = 12
     got = np.full(len(tri) + 2, -7, np.int64)
     n_in_front = cell_keys(tri, b0, b1, b2, ref, rate, got)
-    expect = [-1 if h else (t << 42) + ((cy + 2 ** 20) << 21) + cx + 2 ** 20
-              for h, (t, cx, cy) in zip(behind, keys)]
+    expect = [-1 if h or o else (t << 42) + ((cy + 2 ** 20) << 21) + cx + 2 ** 20
+              for h, o, (t, cx, cy) in zip(behind, off, keys)]
     np.testing.assert_array_equal(got[:len(tri)], expect)
     assert np.all(got[len(tri):] == -7)  # only the batch's rows are written
-    assert n_in_front == len(tri) - behind.sum() and 0 < behind.sum() < len(tri)
+    assert n_in_front == len(tri) - behind.sum() and 0 < behind.sum() < len(tri) and off.sum() > 0
     assert len({k for k in expect if k >= 0}) > 20 and min(k[1] for k in keys) < 0 and min(k[2] for k in keys) < 0
 
 
