@@ -67,8 +67,8 @@ BYTES = {
     # a tile record out of the tile traverser (triangle, x, y: 3 x int32)
     "tile_record": 12,
     # a covered-sample record out of the sample tester (triangle, pixel,
-    # sample, depth, three barycentrics, noread: 29 B), written and then
-    # copied to its exact size
+    # sample, depth, three barycentrics, noread: 29 B), in arrays the tester
+    # grows as it writes them (twice while one grows into the other)
     "sample_record": 2 * 29,
     # a shaded sample's RGBA colour (float32), of a batch shaded ahead
     "shaded_sample": 16,

@@ -255,6 +255,57 @@ def test_fast_paths_match_plain_loop(tile_size, spp, pattern, width, height, cul
         assert np.concatenate([o[key] for o in per_record]).tobytes() == whole[key].tobytes()
 
 
+def test_outputs_grown_between_records_equal_the_plain_loop(monkeypatch):
+    """The kernel stops before a record whose covered samples might not fit, the tester grows its outputs
+    and the kernel goes on from that record: the samples, events and counters equal the plain loop's, and
+    equal those of one call with room for all."""
+    import units.sample_tester as st_mod
+    from pipeline_sim.sampling import make_samples
+
+    rng = np.random.default_rng(5)
+    q, r, lx, ly = random_draw(rng, 12, 48, 32)
+    # and two large triangles, one static, one moving: many records of one triangle pending at once
+    big = np.array([[[-0.9, -0.9, 0.1, 1.0], [0.9, -0.8, 0.1, 1.0], [0.1, 0.9, 0.1, 1.0]]] * 2)
+    moved = big.copy()
+    moved[1, :, 0] += 0.4
+    q, r = np.concatenate([q, big]), np.concatenate([r, moved])
+    lx, ly = np.concatenate([lx, np.zeros((2, 3, 2))]), np.concatenate([ly, np.zeros((2, 3, 2))])
+    setup, _, tiles = setup_and_tiles(q, r, lx, ly, 48, 32, tile_size=4, backface_culling=False)
+    samples = make_samples(48, 32, 16, 3, lens=True, motion=True, pattern="net")
+    calls = []
+
+    def counted(*args):
+        calls.append(args[-12])  # the record the call starts at
+        return kernel(*args)
+
+    guards = []
+    records = st_mod.SAMPLE
+
+    class Guarded:  # outputs followed by a guard band that no write may reach
+        @staticmethod
+        def allocate(n, fill=True):
+            out = {}
+            for k, v in records.allocate(n + 20000, fill).items():
+                v[n:] = 7
+                guards.append((v[n:], v[n:].copy()))
+                out[k] = v[:n]
+            return out
+
+    kernel = st_mod.sample_test_kernel
+    monkeypatch.setattr(st_mod, "sample_test_kernel", counted)
+    monkeypatch.setattr(st_mod, "SAMPLE", Guarded)
+    tester = st_mod.SampleTester(None, setup.table, samples, 4, False, True)
+    grown, ev = assert_tester_matches_reference(tester, tiles)  # a new tester sizes its outputs for 2 tiles
+    assert all(np.array_equal(g, kept) for g, kept in guards)
+    assert len(calls) >= 3 and calls[0] == 0 and calls == sorted(set(calls)) and ev["samples_covered"] > 10000
+    calls.clear()
+    tester._per_record = float(len(tiles["tri"]) * 4 * 4 * 16)  # room for every record at once
+    whole = tester.run(tiles)[0]
+    assert calls == [0]
+    for key in whole:
+        assert whole[key].tobytes() == grown[key].tobytes()
+
+
 @pytest.mark.parametrize("algorithm", ["two_stage", "interleave_uvt"])
 def test_fast_paths_match_plain_loop_with_lines_and_masks(algorithm):
     from pipeline_sim.sampling import make_samples

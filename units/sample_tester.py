@@ -709,7 +709,7 @@ def _tile_major(width, height, row0, spp, tile_size, x, y, u, v, t, tup, ax, ay,
 def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, noread_in,
                        lines, masks, tile_size, width, height, spp, sx, sy, su, sv, st, stup, slot_lo, slot_hi,
                        uv_range, xy_max, row0,
-                       p0, dp, l0, dl, edge_eps, backface_culling, specialize,
+                       p0, dp, l0, dl, edge_eps, backface_culling, specialize, first, start, covered,
                        out_tri, out_pix, out_sidx, out_z, out_b0, out_b1, out_b2, out_noread, ops, events):
     """Interval lookup on the tile's samples and exact inside tests (Munkberg11 §5; Gribel10 eq. 3, 10-13).
 
@@ -745,12 +745,22 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
     such. ``xy_max`` bounds |x| and |y| of every sample's offset in its
     pixel. The samples may be those of a screen region: rows from image row
     ``row0`` (a tile row), ``height`` of them; ``tile_y`` then counts tile
-    rows from ``row0`` and the pixels written are numbered from it.
+    rows from ``row0``, and the pixels written are numbered from the
+    region's first pixel plus ``first``.
+
+    It starts at record ``start`` with ``covered`` samples already written,
+    and stops before a record whose covered samples might not fit in the
+    outputs (a record needs room for a whole tile's samples after those
+    pending). Returns (covered samples written, the record it
+    stopped at: the number of records when done); the caller grows the
+    outputs and calls again from there. Stopping between records changes no
+    output (pass 2 may run on any run of whole records).
     """
     n_frame = width * height * spp  # the slot-major order's start
     u_min, u_max, v_min, v_max = uv_range[0], uv_range[1], uv_range[2], uv_range[3]
     none = tri_ids.shape[0] * 0  # 0, not a literal: the callees compile once
-    n = none
+    n = none + covered
+    out_cap = out_tri.shape[0]
     tested = 0
     by_dims = np.zeros(4, np.int64)
     in_range = 0
@@ -832,16 +842,21 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
     b_z3 = z3
     b_eps = np.float32(0.0)
     n_rec = tri_ids.shape[0]
-    for i in range(n_rec + 1):
+    stop = n_rec
+    for i in range(start, n_rec + 1):
         # ---- pass 2 on the batch: when the triangle changes, before the
-        # buffers could overflow, and at the end ------------------------------
-        if nb > 0 and (i == n_rec or tri_ids[i] != b_tri or nq + tile_len > bcap):
+        # buffers or the outputs could overflow, and at the end ---------------
+        room = n + nq + tile_len <= out_cap
+        if nb > 0 and (i == n_rec or tri_ids[i] != b_tri or nq + tile_len > bcap or not room):
             n = _flush(n, nb, nq, b_tri, b_static, b_c, b_z3, backface_culling, b_eps, pt, pu, pv, px, py, pok, pz,
                        pb0, pb1, pb2, poff, psid, ppix, rb_end, rb_slotted, rb_pix0, rb_area, rb_za, rb_zb, rb_nr,
                        cnt, out_tri, out_pix, out_sidx, out_z, out_b0, out_b1, out_b2, out_noread)
             nb = 0
             nq = 0
         if i == n_rec:
+            break
+        if n + tile_len > out_cap:
+            stop = i
             break
         tri = tri_ids[i]
         if tri != prev:
@@ -1036,7 +1051,7 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
         nq = base + m
         rb_end[nb] = nq
         rb_slotted[nb] = slotted
-        rb_pix0[nb] = py0 * width + px0
+        rb_pix0[nb] = py0 * width + px0 + first
         rb_area[nb] = area
         rb_za[nb] = np.float32(z_lo[i])
         rb_zb[nb] = np.float32(z_hi[i])
@@ -1054,8 +1069,8 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
         events[EV_2D + d_] += by_dims[d_]
     events[EV_INRANGE] += in_range
     events[EV_PIXELS] += pixels
-    events[EV_COVERED] += n
-    return n
+    events[EV_COVERED] += n - covered
+    return n, stop
 
 
 _NO_LINES = np.zeros((0, 8), np.float32)
@@ -1170,7 +1185,7 @@ class SampleTester:
             raise ValueError(f"layouts of {self.layouts.tile_size}-pixel tiles for a {tile_size}-pixel tester")
         self.samples = None
         self._layout = None
-        self._out = None  # the kernel's output buffers, sized for the largest batch so far (``run`` copies them)
+        self._per_record = 0.0  # covered samples per tile record in the last batch (sizes the next one's outputs)
         if samples is not None:
             self.use_samples(samples)
 
@@ -1192,8 +1207,9 @@ class SampleTester:
         return self._layout[:-1]
 
     def kernel_args(self, tiles: dict[str, np.ndarray], out: dict[str, np.ndarray], ops: np.ndarray,
-                    events: np.ndarray) -> tuple:
-        """The arguments of ``sample_test_kernel`` for a batch of tile records."""
+                    events: np.ndarray, start: int = 0, covered: int = 0) -> tuple:
+        """The arguments of ``sample_test_kernel`` for a batch of tile records, from record ``start`` with
+        ``covered`` samples already in ``out``."""
         s = self.samples
         t = self.table
         ty = tiles["ty"] - np.int32(s.row0 // self.tile_size) if s.row0 else tiles["ty"]  # rows from row0
@@ -1202,18 +1218,29 @@ class SampleTester:
                 tiles["z_hi"], tiles["noread"], tiles.get("lines", _NO_LINES), tiles.get("mask", _NO_MASKS),
                 self.tile_size, s.width, s.height, s.spp, *self.layout(), s.row0,
                 t.p0_32, t.dp_32, t.l0_32, t.dl_32, t.edge_eps, self.backface_culling, self.specialize,
-                out["tri"], out["pix"], out["sidx"], out["z"], out["b0"], out["b1"], out["b2"], out["noread"],
+                s.row0 * s.width, start, covered, out["tri"], out["pix"], out["sidx"], out["z"], out["b0"], out["b1"], out["b2"], out["noread"],
                 ops, events)
 
     def run(self, tiles: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+        """Test a batch of tile records; its covered samples come out in arrays of their own (the kernel
+        writes them there, grown as needed: no copy)."""
         s = self.samples
-        cap = len(tiles["tri"]) * self.tile_size * self.tile_size * s.spp
-        if self._out is None or len(self._out["tri"]) < cap:
-            self._out = SAMPLE.allocate(cap, fill=False)
-        out = self._out
+        n_rec = len(tiles["tri"])
+        tile_len = self.tile_size * self.tile_size * s.spp  # a record's covered samples at most
+        bound = n_rec * tile_len
+        size = min(bound, int(1.25 * self._per_record * n_rec) + 2 * tile_len)
+        out = SAMPLE.allocate(size, fill=False)
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
-        m = sample_test_kernel(*self.kernel_args(tiles, out, ops, events))
+        m, i = sample_test_kernel(*self.kernel_args(tiles, out, ops, events))
+        while i < n_rec:  # out of room before record i: grow (to at least a tile's samples more) and go on
+            size = min(bound, max(2 * size, m + tile_len))
+            grown = SAMPLE.allocate(size, fill=False)
+            for k, v in out.items():
+                grown[k][:m] = v[:m]
+            out = grown
+            m, i = sample_test_kernel(*self.kernel_args(tiles, out, ops, events, i, m))
+        self._per_record = m / max(n_rec, 1)
         tested = events[EV_TESTED]
         for d_ in range(4):
             ops[OP_MADD] += events[EV_2D + d_] * TEST_OPS_MADD[d_]
@@ -1222,7 +1249,4 @@ class SampleTester:
         ops[OP_RCP] += m * COVER_OPS_RCP
         ops[OP_MUL] += m * COVER_OPS_MUL
         ops[OP_MADD] += m * COVER_OPS_MADD
-        # (the kernel numbers pixels from the region's first row)
-        first = np.int32(s.row0 * s.width)
-        res = {k: v[:m] + first if k == "pix" else v[:m].copy() for k, v in out.items()}
-        return res, ops, events
+        return {k: v[:m] for k, v in out.items()}, ops, events
