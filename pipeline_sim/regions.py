@@ -134,11 +134,14 @@ class RegionSamples:
     regions' samples at once, and it changes no value: the same function
     makes the same set. ``prepare``, if given, runs on each set made ahead,
     on the same thread, before it is handed out (the sample tester lays its
-    samples out there); a set made on request is handed out as made.
+    samples out there), and as ``prepare(set, True)`` on a set made on a
+    request that asks for it (``region(r, prepared=True)``: the requester
+    waits for both, so the next region is started only then); another set
+    made on request is handed out as made.
     """
 
     def __init__(self, plan: RegionPlan, make: Callable[[tuple[int, int]], SampleSet], keep: int = 3,
-                 prepare: Callable[[SampleSet], SampleSet] | None = None):
+                 prepare: Callable[..., SampleSet] | None = None):
         self.plan = plan
         self._make = make
         self._prepare = prepare
@@ -149,7 +152,7 @@ class RegionSamples:
         self._pending: dict[int, Future] = {}
         self.made = 0
 
-    def region(self, region: int) -> SampleSet:
+    def region(self, region: int, prepared: bool = False) -> SampleSet:
         s = self._sets.get(region)
         if s is not None:
             self._sets.move_to_end(region)
@@ -157,7 +160,12 @@ class RegionSamples:
         for skipped in [r for r in self._pending if r < region]:  # made ahead for a region no batch reached
             self._pending.pop(skipped).cancel()
         pending = self._pending.pop(region, None)
-        s = pending.result() if pending is not None else self._make(self.plan.bounds(region))
+        if pending is not None:
+            s = pending.result()
+        else:
+            s = self._make(self.plan.bounds(region))
+            if prepared and self._prepare is not None:
+                s = self._prepare(s, True)
         self.made += 1
         self._sets[region] = s
         while len(self._sets) > self._keep:

@@ -185,8 +185,9 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     plan = plan_regions(draw.width, draw.height, spp, p.simulation.region_samples, step)
     # a region's samples are made when a unit first needs them (a region with triangles may get no batch:
     # the default scene's top one), and each next region's while the one before runs, with the sample
-    # tester's layout of them (a conservative pass tests no samples; a set made on request is laid out
-    # by the tester on its first batch there); the pattern's shared (u, v, t) tuples (Interleave UVT) and
+    # tester's layout of them (a conservative pass tests no samples; a set the tester asks for is laid
+    # out with it, on both cores, before the next one is started; one another unit asked for first is
+    # laid out by the tester on its first batch there); the pattern's shared (u, v, t) tuples (Interleave UVT) and
     # the check of a sample table come with a set of no rows
     layouts = TileMajorLayouts(ts)
     samples = RegionSamples(plan, made, prepare=None if conservative else layouts.prepare)
@@ -234,7 +235,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     # each unit that holds a region's samples or buffers is handed them as its batches move on: the
     # sample tester, shading and the ROP (which needs samples only to refresh z-cull and for lens
     # resolves, and starts with region 0's buffers) take a region's samples with its first batch
-    tester_at = RegionCursor(lambda r: tester.use_samples(samples.region(r)))
+    tester_at = RegionCursor(lambda r: tester.use_samples(samples.region(r, prepared=True)))
     shading_at = RegionCursor(lambda r: shading.use_samples(samples.region(r)))
     rop_at = RegionCursor(lambda r: rop.open_region(plan.bounds(r), samples.region(r) if rop_samples else None))
     cs = {u.name: CounterSet(u.name, u.events, u.timing_dependent)

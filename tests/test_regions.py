@@ -118,6 +118,33 @@ def test_the_next_region_to_visit_is_made_ahead_on_another_thread_with_the_same_
     assert regions.made == 3
 
 
+def test_a_request_for_a_prepared_set_prepares_it_before_the_next_region_is_started():
+    """``region(r, prepared=True)`` on a set not made yet: it is made and prepared (``prepare(set, True)``:
+    waited for) on the requesting thread, and only then is the next region started ahead (prepared
+    there with ``prepare(set)``); a set already made is handed out as it is."""
+    log = []
+
+    def make(rows):
+        log.append(("make", rows[0] // 16, threading.current_thread().name))
+        return make_samples(8, 64, 4, 1, lens=False, motion=True, rows=rows)
+
+    def prepare(s, waited_for=False):
+        log.append(("prepare", s.row0 // 16, waited_for))
+        return s
+
+    regions = RegionSamples(RegionPlan(8, 64, 16), make, keep=1, prepare=prepare)
+    regions.will_visit([0, 1, 2])
+    try:
+        first = regions.region(0, prepared=True)
+        assert log[:2] == [("make", 0, threading.current_thread().name), ("prepare", 0, True)]
+        assert regions.region(0, prepared=True) is first and len([e for e in log if e[1] == 0]) == 2
+        assert regions.region(1, prepared=True).row0 == 16
+    finally:
+        regions.close()
+    assert ("prepare", 1, False) in log and ("prepare", 1, True) not in log
+    assert log[2][:2] == ("make", 1) and log[2][2].startswith("region-samples")
+
+
 def test_no_region_is_made_before_the_first_request_and_only_those_made_ahead_are_prepared():
     """Regions with triangles may still get no batch (their tiles all culled): none is made on the
     word of ``will_visit`` alone, only once a unit asks for it; the next one to visit is then made

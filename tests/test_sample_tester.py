@@ -509,6 +509,44 @@ def test_layout_keeps_nan_rules():
     assert SampleTester(None, None, dataclasses.replace(s, x=x), 4, False).layout()[9] == np.inf
 
 
+def test_layouts_built_on_two_threads_match_numpy():
+    """A layout the pipeline waits for is built on two threads, half the tile rows each, and its ranges
+    merged: the same as numpy's (odd numbers of tile rows, cut tiles, a set of one tile row), and the NaN
+    rules hold whichever half holds the NaN."""
+    import dataclasses
+
+    from pipeline_sim.sampling import make_samples
+    from units.sample_tester import TileMajorLayouts
+
+    width, spp, ts = 21, 8, 4
+    layouts = TileMajorLayouts(ts)
+    for rows in ((4, 15), (0, 18), (8, 12)):
+        s = make_samples(width, 18, spp, 5, lens=True, motion=True, rows=rows)
+        layouts.prepare(s, True)
+        lay = layouts.take(s)
+        _assert_layout(lay[:-1], s, ts)
+        layouts.release(lay)
+    s = make_samples(width, 16, spp, 5, lens=True, motion=True)
+    n = len(s.t)
+    for k in (3, n - 3):  # first half, second half
+        t, u, x = s.t.copy(), s.u.copy(), s.x.copy()
+        t[k] = u[k] = np.nan
+        with_nan = dataclasses.replace(s, t=t, u=u)
+        layouts.prepare(with_nan, True)
+        lay = layouts.take(with_nan)
+        by_slot = t.reshape(-1, spp)
+        np.testing.assert_array_equal(lay[6], np.nanmin(by_slot, axis=0))
+        np.testing.assert_array_equal(lay[7], np.nanmax(by_slot, axis=0))
+        np.testing.assert_array_equal(lay[8][:2], [min(np.nanmin(u), 0), max(np.nanmax(u), 0)])
+        layouts.release(lay)
+        x[k] = np.nan
+        x_nan = dataclasses.replace(s, x=x)
+        layouts.prepare(x_nan, True)
+        lay = layouts.take(x_nan)
+        assert lay[9] == np.inf
+        layouts.release(lay)
+
+
 def test_layouts_prepared_on_another_thread_equal_those_built_in_place_and_reuse_buffers():
     """``TileMajorLayouts``: a layout prepared on another thread (as a region's samples are made ahead)
     is the one the tester takes, equal to the numpy layout; a released

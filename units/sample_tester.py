@@ -602,10 +602,11 @@ def _positions(words, n_words, out):
 
 
 @nb.njit(cache=True, nogil=True)
-def _tile_major(width, height, row0, spp, tile_size, x, y, u, v, t, tup, ax, ay, tu, tv, tt, ttup, slot_lo, slot_hi,
-                stats):
-    """The samples in the sample tester's two tile-major orders, one after the
-    other in each output array, in one pass over them.
+def _tile_major(width, height, row0, spp, tile_size, ty0, ty1, x, y, u, v, t, tup, ax, ay, tu, tv, tt, ttup, slot_lo,
+                slot_hi, stats):
+    """The samples of tile rows ``ty0 .. ty1 - 1`` in the sample tester's two
+    tile-major orders, one after the other in each output array, in one pass
+    over them (``slot_lo``, ``slot_hi`` and ``stats`` cover those rows).
 
     Every tile's samples become contiguous, from ``base = (ty * tile_size *
     width + tx * tile_size * h) * spp`` (w x h: the tile's size, smaller at
@@ -638,7 +639,7 @@ def _tile_major(width, height, row0, spp, tile_size, x, y, u, v, t, tup, ax, ay,
     u_hi = zero
     v_lo = zero
     v_hi = zero
-    for ty in range((height + tile_size - 1) // tile_size):
+    for ty in range(ty0, ty1):
         y0 = ty * tile_size
         h = min(tile_size, height - y0)
         for tx in range((width + tile_size - 1) // tile_size):
@@ -1102,9 +1103,10 @@ class TileMajorLayouts:
         self._ready: dict[int, tuple] = {}  # by id(samples): (samples, layout)
         self._free: list[tuple] = []  # buffer sets of released layouts
 
-    def prepare(self, samples):
-        """Build the layout of ``samples`` now, for a later ``take``; returns ``samples``."""
-        layout = self._build(samples)
+    def prepare(self, samples, waited_for: bool = False):
+        """Build the layout of ``samples`` now, for a later ``take``; returns ``samples``. ``waited_for``:
+        the pipeline waits for it (nothing else runs), so it takes both cores."""
+        layout = self._build(samples, 2 if waited_for else 1)
         with self._lock:
             self._ready[id(samples)] = (samples, layout)
         return samples
@@ -1133,9 +1135,10 @@ class TileMajorLayouts:
                     return self._free.pop(i)
         return (tuple(np.empty(n, np.float32) for _ in range(5)), np.empty(n, np.int8) if has_tup else None)
 
-    def _build(self, s) -> tuple:
+    def _build(self, s, threads: int = 1) -> tuple:
         """(x, y, u, v, t, tuple index, slot_lo, slot_hi, uv_range, xy_max, buffers): the kernel's
-        arguments, pixel-major then slot-major in each array, views of ``buffers``."""
+        arguments, pixel-major then slot-major in each array, views of ``buffers``; on two threads, each
+        laying out half the tile rows, with ``threads`` 2."""
         n = len(s.t)
         if s.width * s.height * s.spp != n:
             raise ValueError("the sample tester needs the samples of whole rows")
@@ -1146,11 +1149,28 @@ class TileMajorLayouts:
         f32, i8 = buffers
         tup = i8[:2 * n] if has_tup else np.zeros(1, np.int8)  # (the kernel reads index 0)
         arrays = tuple(a[:2 * n] for a in f32) + (tup,)
-        lo = np.empty(s.spp, np.float32)
-        hi = np.empty(s.spp, np.float32)
-        stats = np.empty(6, np.float64)
-        _tile_major(s.width, s.height, s.row0, s.spp, self.tile_size, s.x, s.y, s.u, s.v, s.t,
-                    s.tup if has_tup else _NO_TUPLES, *arrays, lo, hi, stats)
+        rows = (s.height + self.tile_size - 1) // self.tile_size
+        parts = [(0, rows)] if threads < 2 or rows < 2 else [(0, rows // 2), (rows // 2, rows)]
+        out = [(np.empty(s.spp, np.float32), np.empty(s.spp, np.float32), np.empty(6, np.float64)) for _ in parts]
+
+        def lay_out(part: int) -> None:
+            _tile_major(s.width, s.height, s.row0, s.spp, self.tile_size, *parts[part], s.x, s.y, s.u, s.v, s.t,
+                        s.tup if has_tup else _NO_TUPLES, *arrays, *out[part])
+
+        if len(parts) == 1:
+            lay_out(0)
+        else:  # (the kernel runs without the interpreter lock; the halves write apart)
+            helper = threading.Thread(target=lay_out, args=(1,), name="tile-major-layout")
+            helper.start()
+            lay_out(0)
+            helper.join()
+        lo, hi, stats = out[0]
+        for lo_b, hi_b, st_b in out[1:]:  # the later rows' bounds as one pass over all rows would take them
+            lo[:] = np.where(lo_b < lo, lo_b, lo)
+            hi[:] = np.where(hi_b > hi, hi_b, hi)
+            stats[:2] = np.where(np.isnan(st_b[:2]) | (st_b[:2] > stats[:2]), st_b[:2], stats[:2])
+            stats[2:] = np.where([st_b[2] < stats[2], st_b[3] > stats[3], st_b[4] < stats[4], st_b[5] > stats[5]],
+                                 st_b[2:], stats[2:])
         if not (np.all(np.diff(lo) >= 0) and np.all(np.diff(hi) >= 0)):
             lo[:] = -np.inf  # slots not in t order: every record takes them all
             hi[:] = np.inf
@@ -1218,8 +1238,8 @@ class SampleTester:
                 tiles["z_hi"], tiles["noread"], tiles.get("lines", _NO_LINES), tiles.get("mask", _NO_MASKS),
                 self.tile_size, s.width, s.height, s.spp, *self.layout(), s.row0,
                 t.p0_32, t.dp_32, t.l0_32, t.dl_32, t.edge_eps, self.backface_culling, self.specialize,
-                s.row0 * s.width, start, covered, out["tri"], out["pix"], out["sidx"], out["z"], out["b0"], out["b1"], out["b2"], out["noread"],
-                ops, events)
+                s.row0 * s.width, start, covered, out["tri"], out["pix"], out["sidx"], out["z"], out["b0"],
+                out["b1"], out["b2"], out["noread"], ops, events)
 
     def run(self, tiles: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
         """Test a batch of tile records; its covered samples come out in arrays of their own (the kernel
