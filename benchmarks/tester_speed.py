@@ -260,8 +260,9 @@ def measure(scenes=SCENES, repeats: int = 5, subs: list[SubBatch] | None = None,
                 for which in ((0, 1) if tester_first else (1, 0)):
                     if which == 0:
                         c0 = time.perf_counter()
-                        n_cov, _ = kernel(*targs)
+                        n_cov, stop = kernel(*targs)
                         t_tester[d, rep] += time.perf_counter() - c0
+                        assert stop == len(sb.tiles["tri"]), "outputs sized for every record"
                     else:
                         c0 = time.perf_counter()
                         counts = kern(*margs)

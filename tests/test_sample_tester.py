@@ -306,6 +306,55 @@ def test_outputs_grown_between_records_equal_the_plain_loop(monkeypatch):
         assert whole[key].tobytes() == grown[key].tobytes()
 
 
+def test_a_region_tester_equals_the_whole_frame_tester_on_the_region_records():
+    """A tester holding a screen region's samples (rows from a tile row below the top, grown outputs
+    included) gives, for the records in that region, exactly the covered samples of a tester holding the
+    whole frame's: pixels numbered in the frame, the same sample indices, depths and barycentrics."""
+    from pipeline_sim.sampling import make_samples
+    from units.sample_tester import SampleTester
+
+    width, height, spp, ts = 40, 32, 8, 4
+    rng = np.random.default_rng(17)
+    q, r, lx, ly = random_draw(rng, 14, width, height)
+    setup, _, tiles = setup_and_tiles(q, r, lx, ly, width, height, tile_size=ts, backface_culling=False)
+    frame = SampleTester(None, setup.table, make_samples(width, height, spp, 9, lens=True, motion=True), ts, False)
+    for rows in ((8, 20), (12, 32)):
+        in_region = (tiles["ty"] >= rows[0] // ts) & (tiles["ty"] < rows[1] // ts)
+        records = {k: v[in_region] for k, v in tiles.items()}
+        region = SampleTester(None, setup.table,
+                              make_samples(width, height, spp, 9, lens=True, motion=True, rows=rows), ts, False)
+        got = region.run(records)[0]
+        want = frame.run(records)[0]
+        assert len(want["tri"]) > 200
+        assert got["pix"].min() >= rows[0] * width and got["pix"].max() < rows[1] * width
+        for key in want:
+            assert got[key].tobytes() == want[key].tobytes(), key
+
+
+def test_a_failing_half_of_a_two_thread_layout_raises_and_leaves_no_thread(monkeypatch):
+    """When the helper thread's half of a two-thread layout fails, ``prepare`` raises its error on the
+    calling thread (no half-written layout is kept) and the helper has been joined."""
+    import threading
+
+    import units.sample_tester as st_mod
+    from pipeline_sim.sampling import make_samples
+
+    plain = st_mod._tile_major
+
+    def second_half_fails(width, height, row0, spp, tile_size, ty0, ty1, *rest):
+        if ty0 > 0:
+            raise MemoryError("second half")
+        return plain(width, height, row0, spp, tile_size, ty0, ty1, *rest)
+
+    monkeypatch.setattr(st_mod, "_tile_major", second_half_fails)
+    layouts = st_mod.TileMajorLayouts(4)
+    s = make_samples(16, 16, 4, 1, lens=True, motion=True)
+    with pytest.raises(MemoryError, match="second half"):
+        layouts.prepare(s, True)
+    assert not any(t.name == "tile-major-layout" for t in threading.enumerate())
+    assert layouts._ready == {}
+
+
 @pytest.mark.parametrize("algorithm", ["two_stage", "interleave_uvt"])
 def test_fast_paths_match_plain_loop_with_lines_and_masks(algorithm):
     from pipeline_sim.sampling import make_samples

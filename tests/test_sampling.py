@@ -405,6 +405,51 @@ def test_lens_polynomial_within_its_bound():
         assert np.max(np.abs(got[:, k] - libm[:, k])) < _POLY_TOL / 32
 
 
+def _points_the_polynomial_rounds_otherwise(second_wedge: bool, k: int, count: int) -> list[tuple[float, float]]:
+    """Unit-square points whose ``r cos phi`` (k 0) or ``r sin phi`` (k 1) rounds to another float32 by the
+    lens polynomial than by the C library: angles where the two differ in float64, the radius moved onto a
+    float32 rounding midpoint of the product (Newton steps), then float64 steps around it."""
+    rng = np.random.default_rng(11 + 2 * k + second_wedge)
+    libm = (math.cos, math.sin)[k]
+
+    def polar(x: float, other: float) -> tuple[float, float]:
+        return _concentric_polar(other, x) if second_wedge else _concentric_polar(x, other)
+
+    found = []
+    while len(found) < count:
+        x, other = 0.75 + 0.25 * rng.random(), 0.15 + 0.7 * rng.random()  # |2 other - 1| < 2 x - 1
+        if _sincos_poly(polar(x, other)[1])[1 - k] == libm(polar(x, other)[1]):
+            continue
+        f = np.float32(polar(x, other)[0] * libm(polar(x, other)[1]))
+        mid = (float(f) + float(np.nextafter(f, np.float32(2)))) / 2
+        for _ in range(20):
+            r, phi = polar(x, other)
+            r2, phi2 = polar(x + 1e-9, other)
+            slope = (r2 * libm(phi2) - r * libm(phi)) / 1e-9
+            x -= (r * libm(phi) - mid) / slope
+        for step in range(-64, 65):
+            xs = x + step * np.spacing(x)
+            r, phi = polar(xs, other)
+            if np.float32(r * _sincos_poly(phi)[1 - k]) != np.float32(r * libm(phi)):
+                found.append((other, xs) if second_wedge else (xs, other))
+                break
+    return found
+
+
+@pytest.mark.parametrize("second_wedge", [False, True])
+@pytest.mark.parametrize("k", [0, 1])
+def test_lens_map_falls_back_to_the_c_library_where_the_polynomial_rounds_otherwise(second_wedge, k):
+    """Where the polynomial's float64 product lies on the other side of a float32 rounding boundary from the
+    C library's (points built for it, since at random it almost never happens), the lens map gives the C
+    library's float32: without its fallback it would give the polynomial's."""
+    points = np.array(_points_the_polynomial_rounds_otherwise(second_wedge, k, 4))
+    got = _concentric_many(points[:, 0], points[:, 1])[k]
+    for (a, b), g in zip(points, got):
+        r, phi = _concentric_polar(a, b)
+        assert g == np.float32(r * (math.cos, math.sin)[k](phi))
+        assert g != np.float32(r * _sincos_poly(phi)[1 - k])
+
+
 @settings(max_examples=300, deadline=None)
 @given(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.integers(-4, 4))
 def test_same_float32_only_when_the_whole_bound_rounds_alike(r, w, shift):

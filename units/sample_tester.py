@@ -752,7 +752,7 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
     It starts at record ``start`` with ``covered`` samples already written,
     and stops before a record whose covered samples might not fit in the
     outputs (a record needs room for a whole tile's samples after those
-    pending). Returns (covered samples written, the record it
+    pending). Returns (covered samples in the outputs, the record it
     stopped at: the number of records when done); the caller grows the
     outputs and calls again from there. Stopping between records changes no
     output (pass 2 may run on any run of whole records).
@@ -1105,7 +1105,7 @@ class TileMajorLayouts:
 
     def prepare(self, samples, waited_for: bool = False):
         """Build the layout of ``samples`` now, for a later ``take``; returns ``samples``. ``waited_for``:
-        the pipeline waits for it (nothing else runs), so it takes both cores."""
+        the pipeline is waiting for it (little else is running), so it lays out on both cores."""
         layout = self._build(samples, 2 if waited_for else 1)
         with self._lock:
             self._ready[id(samples)] = (samples, layout)
@@ -1160,10 +1160,22 @@ class TileMajorLayouts:
         if len(parts) == 1:
             lay_out(0)
         else:  # (the kernel runs without the interpreter lock; the halves write apart)
-            helper = threading.Thread(target=lay_out, args=(1,), name="tile-major-layout")
+            failed: list[BaseException] = []
+
+            def lay_out_later_rows() -> None:
+                try:
+                    lay_out(1)
+                except BaseException as error:  # raised on the calling thread below
+                    failed.append(error)
+
+            helper = threading.Thread(target=lay_out_later_rows, name="tile-major-layout")
             helper.start()
-            lay_out(0)
-            helper.join()
+            try:
+                lay_out(0)
+            finally:
+                helper.join()
+            if failed:
+                raise failed[0]
         lo, hi, stats = out[0]
         for lo_b, hi_b, st_b in out[1:]:  # the later rows' bounds as one pass over all rows would take them
             lo[:] = np.where(lo_b < lo, lo_b, lo)
