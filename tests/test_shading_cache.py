@@ -27,6 +27,7 @@ from pipeline_sim.pass_state import PassState
 from pipeline_sim.shaders import (IN_B, IN_G, IN_PX, IN_PY, IN_R, IN_T, IN_TRIANGLE, IN_U, IN_V, IN_X, IN_Y,
                                   N_INPUTS, standard_shader)
 from units.shading_cache import (EVENTS, REPL_FIFO, REPL_LRU, Shading, cache_kernel, cache_scratch, cell_keys,
+                                 run_end,
                                  deliver_colors, store_requests)
 
 EV = {name: i for i, name in enumerate(EVENTS)}
@@ -228,6 +229,33 @@ def test_set_associative_matches_reference_with_observed_sets(policy, entries, w
         hit, _, _, _ = kc.run(tri, b0, b1, b2, keys)
         np.testing.assert_array_equal(hit, [rc.access(k) for k in keys])
     assert kc.events[EV["evictions"]] == rc.evictions
+
+
+@given(st.lists(st.tuples(st.integers(0, 3), st.integers(1, 200)), min_size=1, max_size=12))
+def test_run_end_finds_each_run_of_equal_values(runs):
+    """``run_end`` against runs written out here: from every index, the end of the run of equal values
+    holding it (runs shorter and longer than its 64-value blocks, ending on a block's edge or inside)."""
+    values = np.concatenate([np.full(n, v, np.int32) for v, n in runs])
+    ends = np.r_[np.flatnonzero(np.diff(values)) + 1, len(values)]
+    for i in range(len(values)):
+        assert run_end(values, i) == ends[np.searchsorted(ends, i, side="right")]
+
+
+def test_cell_keys_in_long_runs_equal_keys_one_by_one():
+    """Runs longer than ``run_end``'s blocks, ending on a block edge and inside one: the keys of the whole
+    stream equal those of each sample on its own."""
+    rng, ref = _setup(37, ntri=6, size=9.0, rate=1.0)
+    tri, b0, b1, b2, _ = make_stream(rng, ref, 700, 1.0)
+    tri = np.repeat(np.arange(6, dtype=np.int32), [65, 64, 1, 200, 129, 241])
+    whole = np.empty(len(tri), np.int64)
+    one = np.empty(1, np.int64)
+    n_in_front = cell_keys(tri, b0, b1, b2, ref, 1.0, whole)
+    singles = []
+    for k in range(len(tri)):
+        cell_keys(tri[k:k + 1], b0[k:k + 1], b1[k:k + 1], b2[k:k + 1], ref, 1.0, one)
+        singles.append(one[0])
+    np.testing.assert_array_equal(whole, singles)
+    assert n_in_front == len(tri) and len(set(singles)) > 50
 
 
 @pytest.mark.parametrize("rate", [1.0, 2.0, 0.75])
