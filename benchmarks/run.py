@@ -468,7 +468,7 @@ def bench_per_sample(cfg: dict) -> dict:
     out["instrumented_ns_per_sample"] = 1e9 * out["instrumented_total_s"] / samples
     out["instrumented_ns_per_sample_cpu"] = 1e9 * out["instrumented_total_cpu_s"] / samples
     # uninstrumented passes on one thread (simulation.run_ahead = 0, as the instrumented runs) and as shipped,
-    # with the tile test, the sample tester and shading on run-ahead threads, alternately
+    # with the tile test, the sample tester, shading and the ROP on run-ahead threads, alternately
     depth = p.simulation.run_ahead
     variants = {"one_thread": 0, "run_ahead": depth}
     log(f"per sample: {cfg['per_sample']['plain']} plain runs each, one thread and run-ahead, alternately")
@@ -789,7 +789,7 @@ def report(results: dict) -> tuple[str, list[dict]]:
                    f"({ps['samples']:,} samples; issue 19 goal: under 50 ns a sample)")
         out.append(f"   {ps['ns_per_sample']:.1f} ns a sample wall ({ps['ns_per_sample_cpu']:.1f} CPU) as shipped; "
                    f"on one thread {ps['one_thread_ns_per_sample']:.1f} ns ({ps['one_thread_s']:.2f} s a pass), with "
-                   f"the tile test, the sample tester and shading up to {ps['run_ahead_depth']} batches ahead on "
+                   f"the tile test, the sample tester, shading and the ROP up to {ps['run_ahead_depth']} batches ahead on "
                    f"threads of their own (simulation.run_ahead) {ps['run_ahead_ns_per_sample']:.1f} ns "
                    f"({ps['run_ahead_s']:.2f} s); "
                    f"medians of {n_plain} plain runs each, alternately")

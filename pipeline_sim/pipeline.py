@@ -19,15 +19,18 @@ counters are declared timing-dependent (docs/pipeline.md §4).
 first, in submission order, and hands ``simulate`` stages that replay what
 each step returned.
 
-A stage whose step depends only on its batch (``Stage.ahead``; the tile test,
-the sample tester and shading) may run its steps before the simulation
-reaches them: ``simulate`` starts the step of each batch that enters the
-stage's FIFO on a thread of the stage's own, in FIFO order and at most
-``run_ahead`` batches ahead, and the stage takes the result when it gets to
-the batch. The numba kernels release the interpreter lock, so one unit's
-kernel runs beside the others' and the SimPy layer on another core. The
-stage steps the same batches in the same order either way: images,
-counters and cycles do not change.
+A stage whose step depends only on its batch and the steps before it
+(``Stage.ahead``; the tile test, the sample tester, shading and the ROP) may
+run its steps before the simulation reaches them: ``simulate`` starts the
+step of each batch that enters the stage's FIFO on a thread of the stage's
+own, in FIFO order and at most ``run_ahead`` batches ahead, and the stage
+takes the result when it gets to the batch. What a step makes that other
+units read waits for that moment: the stage's ``settle`` runs then, on the
+simulation's thread (the ROP's publishes the z-cull refresh its step made).
+The numba kernels release the interpreter lock, so one unit's kernel runs
+beside the others' and the SimPy layer on another core. The stage steps the
+same batches in the same order either way, and settles them at the same
+simulated times: images, counters and cycles do not change.
 """
 
 from __future__ import annotations
@@ -159,6 +162,9 @@ class Stage:
     # whether the step of a batch in the stage's FIFO may start now, on the stage's run-ahead thread (None: never):
     # true only when the step then depends on nothing but the batch and the steps before it
     ahead: Callable[[Any], bool] | None = None
+    # run when the simulation takes a step's result (after the step, at its simulated time, on the simulation's
+    # thread): hands other units what the step made for them, whether the step ran then or ahead
+    settle: Callable[[], None] | None = None
     busy: float = 0.0
     starved: float = 0.0
     blocked: float = 0.0
@@ -273,6 +279,8 @@ def _stage_process(env: simpy.Environment, stage: Stage, inp: Channel, out: Chan
         if now > t0:
             trace.append((t0, now, "starved"))
         outputs, cycles = step(payload)
+        if stage.settle is not None:
+            stage.settle()
         stage.batches += 1
         if cycles > 0:
             yield env.timeout(cycles)
@@ -380,6 +388,8 @@ def run_in_order(stages: list[Stage], source_batches: list[Any], after_batch: Ca
 
     def push(i: int, batch: Any) -> None:
         outputs, cycles = stages[i].step(batch)
+        if stages[i].settle is not None:
+            stages[i].settle()
         logs[i].append([[record_count(o) for o in outputs], cycles])
         if i < last:
             for o in outputs:

@@ -332,11 +332,12 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
 
     pending = []  # ordered: the refresh requests of the current triangle batch
 
-    def refresh(requests) -> float:
+    def refresh(requests, publish: bool = True) -> float:
         """The ROP's refresh of z-cull's boxes, the one path between them: its depth reads and
         comparisons are the ROP's counters, and its reads take the ROP's bandwidth after the batch's
-        own traffic (the scan reads what the batch wrote). Returns its cycles."""
-        ops, ev, nbytes = rop.refresh_zcull(requests)
+        own traffic (the scan reads what the batch wrote). Returns its cycles. Without ``publish``,
+        z-cull sees it when the ROP stage settles the step (the step may run ahead)."""
+        ops, ev, nbytes = rop.refresh_zcull(requests, publish)
         c = cs["rop"]
         c.add_ops(ops), c.add_events(ev), c.add("bytes_read", nbytes)
         return cycles_for(nbytes, arch.rop.bandwidth, 1)
@@ -354,7 +355,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
             if ordered:
                 pending.append(request)
             else:
-                cyc += refresh([request])
+                cyc += refresh([request], publish=False)
         return [], cyc
 
     def after_triangle_batch() -> float:
@@ -381,13 +382,19 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         bypassed.add("zcull")
     if conservative:
         bypassed.add("sample_tester")
-    # steps that depend only on their batch may run ahead of the simulation (pipeline.py): the tile test's
-    # (its batch's clip planes are set in its step), and the sample tester's and shading's (whose cache only
-    # its own steps change, in order) in the region whose samples they hold (a cursor moves to the next
-    # region when the simulation brings it that region's first batch)
+    # steps that depend only on their batch and the unit's earlier steps may run ahead of the simulation
+    # (pipeline.py): the tile test's (its batch's clip planes are set in its step), and the sample tester's,
+    # shading's (whose cache only its own steps change, in order) and the ROP's (whose buffers only its own
+    # steps change; z-cull sees its refreshes when the simulation reaches them) in the region whose samples
+    # or buffers they hold (a cursor moves to the next region when the simulation brings it that region's
+    # first batch)
     ahead = {"tile_test": lambda batch: True, "sample_tester": lambda batch: batch.region == tester_at.region,
-             "shading": (lambda batch: True) if conservative else lambda batch: batch.region == shading_at.region}
-    stages = [Stage(name, fn, lat, ahead=ahead.get(name)) for name, fn, lat in stage_defs if name not in bypassed]
+             "shading": (lambda batch: True) if conservative else lambda batch: batch.region == shading_at.region,
+             "rop": lambda batch: batch.region == rop_at.region}
+    # the ROP's timed refresh of z-cull is published when the simulation reaches the step that made it
+    settle = {"rop": zcull.publish_refresh} if zcull.active and not ordered else {}
+    stages = [Stage(name, fn, lat, ahead=ahead.get(name), settle=settle.get(name))
+              for name, fn, lat in stage_defs if name not in bypassed]
     ids = np.arange(draw.n, dtype=np.int64)
     if presetup:
         # binning needs each triangle's screen bounds: the functional setup

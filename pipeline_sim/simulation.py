@@ -2,8 +2,8 @@
 
 Batch sizes set the granularity of the timing model (records per SimPy
 batch between units), ``region_samples`` how much of a frame is held at
-once and ``run_ahead`` how far the tile test, the sample tester and shading
-may work ahead, each on a thread of its own; none of them changes the image. A scene file sets
+once and ``run_ahead`` how far the tile test, the sample tester, shading and
+the ROP may work ahead, each on a thread of its own; none of them changes the image. A scene file sets
 them in its ``[simulation]`` table, ``--set simulation.KEY=VALUE`` on top of
 that.
 """
@@ -31,7 +31,7 @@ class SimOptions:
         "rows) of at most this many samples, to bound memory; 0: one region. Same image at every size; z-cull "
         "counters and cycles follow the order")
     run_ahead: count(0, 64) = setting(
-        2, SPEED, "batches the tile test, the sample tester and shading may each work ahead of the simulation, "
+        2, SPEED, "batches the tile test, the sample tester, shading and the ROP may each work ahead of the simulation, "
         "each on a thread of its own, while the other units run (0: off, every unit steps on one thread)")
 
     def replace(self, **changes: Any) -> "SimOptions":

@@ -329,7 +329,8 @@ def test_run_ahead_steps_in_order_one_at_a_time_and_times_the_same(depth):
     """A stage with ``ahead`` steps its batches on the run-ahead thread, ahead of the simulation: each
     step still starts after the one before it has ended (in FIFO order, never two at once), a batch
     ``ahead`` refuses is stepped by the stage itself, and the timing, counts and order of everything are
-    those of the same stages without run-ahead."""
+    those of the same stages without run-ahead. Its ``settle`` runs on the main thread, after the step,
+    at the same point among the other stages' steps as without run-ahead."""
     rng = np.random.default_rng(100 + depth)
     on_worker = 0
     for trial in range(12):
@@ -354,14 +355,23 @@ def test_run_ahead_steps_in_order_one_at_a_time_and_times_the_same(depth):
                 log.append(("c", it, None))
                 return [], cost[2][it]
 
-            return [Stage("a", a, int(lats[0])), Stage("b", b, int(lats[1]), ahead=ahead),
+            def settle():
+                log.append(("settle", settled[0], threading.current_thread() is threading.main_thread()))
+                settled[0] += 1
+
+            settled = [0]
+            return [Stage("a", a, int(lats[0])), Stage("b", b, int(lats[1]), ahead=ahead, settle=settle),
                     Stage("c", c, int(lats[2]))]
 
         plain_log, log = [], []
         plain = simulate(stages(plain_log, None), items, 2)
         res = simulate(stages(log, lambda it: it not in refuse), items, 2, run_ahead=depth)
-        b_log = [e for e in log if e[0] != "c"]
+        b_log = [e for e in log if e[0] in ("start", "end")]
         assert [(e[0], e[1]) for e in b_log] == [(k, it) for it in items for k in ("start", "end")]
+        settles = [e for e in log if e[0] == "settle"]
+        assert [e[1] for e in settles] == items and all(on_main for _, _, on_main in settles)
+        assert [e for e in log if e[0] in ("settle", "c")] == [e for e in plain_log if e[0] in ("settle", "c")]
+        assert all(log.index(("settle", it, True)) > log.index(("end", it, None)) for it in items)
         assert all(on_main for kind, it, on_main in b_log if kind == "start" and it in refuse)
         on_worker += sum(not on_main for kind, _, on_main in b_log if kind == "start")
         assert [e for e in log if e[0] == "c"] == [e for e in plain_log if e[0] == "c"]
@@ -580,16 +590,29 @@ def _threads_of(monkeypatch, units: dict) -> dict[str, list[str]]:
 
 @pytest.mark.parametrize("regions", [0, 2048])
 def test_run_ahead_changes_nothing_but_the_thread(draw, regions, monkeypatch):
-    """The tile test, the sample tester and shading stepped ahead, each on a thread of its own (at depths
-    1, 2 (the default) and 8), or on the main thread: the same image, every counter (the timing-dependent
-    ones too; the shading cache's follow the order of its lookups), cycles and timing, in one screen
-    region or in several (the tester and shading do not run ahead into the next region)."""
+    """The tile test, the sample tester, shading and the ROP stepped ahead, each on a thread of its own (at
+    depths 1, 2 (the default) and 8), or on the main thread: the same image, every counter (the
+    timing-dependent ones too: z-cull sees each of the ROP's refreshes when the simulation reaches the ROP
+    step that made it; the shading cache's follow the order of its lookups), cycles and timing, in one
+    screen region or in several (the tester, shading and the ROP do not run ahead into the next region)."""
+    from units.rop import Rop
     from units.sample_tester import SampleTester
     from units.shading_cache import Shading
 
-    threads = _threads_of(monkeypatch, {"sample_tester": SampleTester, "shading": Shading})
+    from units.zcull import ZCull
+
+    threads = _threads_of(monkeypatch, {"sample_tester": SampleTester, "shading": Shading, "rop": Rop})
+    seen = []  # the z-cull boxes each z-cull batch is tested against
+    zcull_run = ZCull.run
+
+    def spy(self, tiles, *query):
+        seen.append(self.zmax.tobytes())
+        return zcull_run(self, tiles, *query)
+
+    monkeypatch.setattr(ZCull, "run", spy)
 
     def result(run_ahead):
+        seen.clear()
         settings = [f"simulation.run_ahead={run_ahead}", f"simulation.region_samples={regions}",
                     "simulation.tiles_per_batch=16", "simulation.samples_per_batch=256"]
         for log in threads.values():
@@ -598,14 +621,16 @@ def test_run_ahead_changes_nothing_but_the_thread(draw, regions, monkeypatch):
         for unit, names in threads.items():  # where each unit's batches ran
             ahead = sum(name.startswith(f"run-ahead-{unit}") for name in names)
             assert ahead > len(names) // 2 if run_ahead else ahead == 0, (unit, ahead, len(names))
-        return res
+        return res, list(seen)
 
-    one_thread = result(0)
+    one_thread, boxes = result(0)
+    assert len(set(boxes)) > 10  # the ROP's refreshes reached z-cull
     assert one_thread.regions.count == (1 if regions == 0 else 3)
     assert one_thread.timing.units.set_index("unit").loc["sample_tester"].batches > 40
     assert one_thread.timing.units.set_index("unit").loc["shading"].batches > 40
     for run_ahead in (1, 2, 8):
-        res = result(run_ahead)
+        res, seen_ahead = result(run_ahead)
+        assert seen_ahead == boxes
         np.testing.assert_array_equal(res.image, one_thread.image)
         np.testing.assert_array_equal(res.depth, one_thread.depth)
         pd.testing.assert_frame_equal(res.counters, one_thread.counters)

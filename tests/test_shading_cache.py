@@ -686,11 +686,12 @@ def test_store_requests_keeps_each_entrys_last_request(entries):
             assert entry_req[e] == -1
 
 
-@given(st.lists(st.integers(0, 6), min_size=0, max_size=60))
-def test_deliver_colors_against_fancy_indexing(refs):
+@given(st.lists(st.integers(0, 6), min_size=0, max_size=60), st.sampled_from([1, 3, 4, 7]))
+def test_deliver_colors_against_fancy_indexing(refs, channels):
+    """Four channels (the unrolled copy) and others, against numpy's fancy indexing."""
     sample_src = np.array(refs, np.int32)
-    palette = np.arange(28, dtype=np.float32).reshape(7, 4) + 0.5
-    color = np.full((len(refs), 4), -3.0, np.float32)
+    palette = np.arange(7 * channels, dtype=np.float32).reshape(7, channels) + 0.5
+    color = np.full((len(refs), channels), -3.0, np.float32)
     deliver_colors(sample_src, palette, color)
     np.testing.assert_array_equal(color, palette[sample_src])
 

@@ -314,6 +314,44 @@ def test_refresh_matches_brute_force_after_every_batch(func, depth_write, slices
             np.testing.assert_array_equal(zcull.zmax.view(np.uint32), expect.view(np.uint32))
 
 
+@pytest.mark.parametrize("lag", [1, 3])
+def test_unpublished_refreshes_reach_the_test_in_order(lag):
+    """Refreshes made with ``publish`` off (the ROP working ahead) leave the boxes the z-cull test reads
+    alone until ``publish_refresh``, which hands them over one by one, in order: the test then reads,
+    bit for bit, what a z-cull refreshed and published at once read after the same refresh (the boxes
+    themselves compared with a full scan of the depth buffer in
+    ``test_refresh_matches_brute_force_after_every_batch``), over a region change too."""
+    rng = np.random.default_rng(40 + lag)
+    w, h, spp, ts = 10, 12, 4, 4
+    cfg = load_arch().zcull
+    state = PassState(depth_test="less")
+    at_once = zcull_and_rop(cfg, state, w, h, spp, ts, 8, seed=5)
+    later = zcull_and_rop(cfg, state, w, h, spp, ts, 8, seed=5)
+    levels = np.array([0.0, 0.25, 0.5, 0.75, 1.0], np.float32)
+    published = []  # the boxes the z-cull refreshed at once shows after each refresh
+    waiting = 0
+    for (r0, r1, _), _ in zip(each_region(*at_once[:2], at_once[3]), each_region(*later[:2], later[3])):
+        for _ in range(10):
+            n = int(rng.integers(1, 40))
+            batch = dict(pix=rng.integers(r0 * w, r1 * w, n).astype(np.int32),
+                         sidx=rng.integers(0, spp, n).astype(np.int32), z=levels[rng.integers(0, len(levels), n)],
+                         color=np.ones((n, 4), np.float32), noread=np.zeros(n, np.bool_))
+            request, *_ = at_once[3].run(batch)
+            at_once[3].refresh_zcull([request])
+            published.append(at_once[2].zmax.copy())
+            shown = later[2].zmax.copy()
+            request, *_ = later[3].run(batch)
+            later[3].refresh_zcull([request], publish=False)
+            np.testing.assert_array_equal(later[2].zmax, shown)  # not seen before it is published
+            waiting += 1
+            if waiting == lag:
+                for k in range(len(published) - lag, len(published)):
+                    later[2].publish_refresh()
+                    np.testing.assert_array_equal(later[2].zmax.view(np.uint32), published[k].view(np.uint32))
+                waiting = 0
+    assert len({p.tobytes() for p in published}) > 6
+
+
 def test_refresh_rescans_a_new_depth_buffer():
     """A tile refreshed from one depth buffer and then from another (a region
     drawn again with fresh buffers) gets the boxes of the new buffer."""

@@ -357,16 +357,17 @@ class Rop:
         request = (batch["pix"], batch["sidx"], prior) if self.zcull is not None else None
         return request, ops, events, traffic
 
-    def refresh_zcull(self, requests: list[tuple]) -> tuple[np.ndarray, np.ndarray, int]:
+    def refresh_zcull(self, requests: list[tuple], publish: bool = True) -> tuple[np.ndarray, np.ndarray, int]:
         """Refresh z-cull's boxes for the samples of ``requests`` (from ``run``, of the current
-        screen region, in order) from the depth buffer as it is now. Returns the ROP's work for
+        screen region, in order) from the depth buffer as it is now; z-cull's test sees them at once,
+        or, without ``publish``, at its ``publish_refresh``. Returns the ROP's work for
         it: arithmetic (one compare per replaced depth checked against its box's zmax and per
         sample rescanned), events (tiles refreshed and rescanned) and the depth bytes read."""
         if len(requests) == 1:
             pix, sidx, prior = requests[0]
         else:
             pix, sidx, prior = (np.concatenate([r[k] for r in requests]) for k in range(3))
-        work = self.zcull.refresh(pix, sidx, prior, self.samples, self.depth)
+        work = self.zcull.refresh(pix, sidx, prior, self.samples, self.depth, publish)
         ops = np.zeros(N_OPS, np.int64)
         ops[OP_CMP] = work[RF_CHECKS] + work[RF_READ]
         events = np.zeros(len(EVENTS), np.int64)

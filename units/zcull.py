@@ -21,6 +21,7 @@ comparing there (``interval_query_kernel``).
 from __future__ import annotations
 
 import weakref
+from collections import deque
 
 import numba as nb
 import numpy as np
@@ -42,6 +43,8 @@ TIMING_DEPENDENT = ("records_out", "tiles_culled", "tiles_no_depth_read")
 # a write may have lowered), depth samples read by the rescans, comparisons of a replaced depth with its box's zmax
 REFRESH_WORK = ("tiles", "scans", "samples_read", "checks")
 RF_TILES, RF_SCANS, RF_READ, RF_CHECKS = range(len(REFRESH_WORK))
+
+_NO_TILES = np.zeros(0, np.int64)
 
 # depth functions for which zmax culling is valid
 CULL_LESS, CULL_LEQUAL, CULL_NONE = 0, 1, 2
@@ -154,7 +157,7 @@ def _box_max(depth, order, k0, k1):
 
 @nb.njit(cache=True, nogil=True)
 def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st, su, sv, depth, zmax, exact, slot,
-                   box_of, order, start, pmax, dirty, work):
+                   box_of, order, start, pmax, dirty, work, scanned):
     """Set zmax of every box of the tiles touched by ``pix`` to the largest depth of its samples
     (Nilsson12 §3: the ROP keeps z-cull's per-tile bounds up to date).
 
@@ -177,7 +180,10 @@ def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st,
     exact by rereading only the (pixel, box) pairs a write may have lowered
     (``dirty``: all False between calls). A tile's zmax is the first largest
     of its pixels' maxima in row-major order, which is the first largest of
-    its samples in the order a scan reads them: the same bits."""
+    its samples in the order a scan reads them: the same bits.
+
+    The tiles rescanned (whose zmax rows were rewritten) go to ``scanned``, in
+    order; returns their number."""
     n = pix.shape[0]
     nbox = zmax.shape[1]
     rows = min(n, zmax.shape[0])  # at most one row per tile the samples can touch
@@ -228,6 +234,7 @@ def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st,
         pmax[p, b] = _box_max(depth[base:base + spp], order[base:base + spp], start[p, b], start[p, b + 1])
     height_px = depth.shape[0] // (width * spp)
     cursor = np.empty(nbox, np.int32)
+    n_scanned = 0
     for j in range(n_touched):
         tile = touched[j]
         slot[tile] = 0
@@ -235,6 +242,8 @@ def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st,
         if not mask.any():
             continue
         work[RF_SCANS] += 1
+        scanned[n_scanned] = tile
+        n_scanned += 1
         fresh = exact[tile] == 0
         exact[tile] = 1
         zrow = zmax[tile]
@@ -271,6 +280,7 @@ def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st,
                     if pmax[p, b] > zrow[b]:
                         zrow[b] = pmax[p, b]
         work[RF_READ] += read
+    return n_scanned
 
 
 class ZCull:
@@ -293,7 +303,11 @@ class ZCull:
         self.nl = config.lens_boxes if lens else 1
         nbox = self.nt * self.nl * self.nl
         ntiles = self.tiles_x * self.tiles_y
+        # zmax as the z-cull test sees it, and as the ROP's refreshes have left it: the two differ only while
+        # refreshes wait to be published (``publish_refresh``), when the ROP works ahead of the simulation
         self.zmax = np.full((ntiles, nbox), clear_depth, np.float32)
+        self.refreshed_zmax = self.zmax.copy()
+        self._unpublished: deque[tuple[np.ndarray, np.ndarray]] = deque()  # (tiles, their zmax rows) per refresh
         self.zmin = np.full((ntiles, nbox), clear_depth, np.float32)
         # refresh state: per tile, whether zmax is exact for the ROP's current
         # depth buffer (``_buffer``) and a scratch slot; each sample's box, and
@@ -350,12 +364,18 @@ class ZCull:
         return {"visible": bool(answer[Q_VISIBLE]), "tiles": int(answer[Q_TILES]),
                 "box_comparisons": int(answer[Q_BOXES])}
 
-    def refresh(self, pix: np.ndarray, sidx: np.ndarray, prior: np.ndarray, samples, depth: np.ndarray
-                ) -> np.ndarray:
+    def refresh(self, pix: np.ndarray, sidx: np.ndarray, prior: np.ndarray, samples, depth: np.ndarray,
+                publish: bool = True) -> np.ndarray:
         """Refresh the boxes of the tiles touched by the samples ``pix, sidx`` from the ROP's
         ``depth`` (``prior``: the depth each one replaced, NaN: none); returns the work done,
-        laid out as ``REFRESH_WORK``. Called through ``Rop.refresh_zcull`` only."""
+        laid out as ``REFRESH_WORK``. Called through ``Rop.refresh_zcull`` only.
+
+        The new boxes go to ``refreshed_zmax``, which the next refresh starts from, and, with
+        ``publish``, to ``zmax`` at once; else they wait, in order, for ``publish_refresh`` (the ROP
+        working ahead of the simulation on a thread of its own: z-cull sees each refresh when the
+        simulation reaches the ROP step that made it, as if made then)."""
         work = np.zeros(len(REFRESH_WORK), np.int64)
+        tiles = _NO_TILES
         if self.active and len(pix):
             if self._buffer is None or self._buffer() is not depth:
                 # a new depth buffer (the next screen region): its tiles start with a full scan
@@ -374,7 +394,20 @@ class ZCull:
             # (the screen region the ROP is working on): index the tiles from there
             first = samples.row0 // self.tile_size * self.tiles_x
             local = pix - samples.row0 * self.width if samples.row0 else pix
-            refresh_kernel(local, sidx, prior, self.width, samples.spp, self.tile_size, self.tiles_x, self.nt,
-                           self.nl, samples.t, samples.u, samples.v, depth, self.zmax[first:], self.exact[first:],
-                           self.slot[first:], self.box_of, self.order, self.start, self.pmax, self.dirty, work)
+            scanned = np.empty(min(len(pix), len(self.zmax) - first), np.int64)
+            n = refresh_kernel(local, sidx, prior, self.width, samples.spp, self.tile_size, self.tiles_x, self.nt,
+                               self.nl, samples.t, samples.u, samples.v, depth, self.refreshed_zmax[first:],
+                               self.exact[first:], self.slot[first:], self.box_of, self.order, self.start, self.pmax,
+                               self.dirty, work, scanned)
+            tiles = scanned[:n] + first
+        rows = self.refreshed_zmax[tiles]
+        if publish:
+            self.zmax[tiles] = rows
+        else:
+            self._unpublished.append((tiles, rows))
         return work
+
+    def publish_refresh(self) -> None:
+        """Let the z-cull test see the oldest refresh made with ``publish`` off."""
+        tiles, rows = self._unpublished.popleft()
+        self.zmax[tiles] = rows
