@@ -64,30 +64,39 @@ def _box_range(lo, hi, n, offset, scale):
 @nb.njit(cache=True, nogil=True)
 def zcull_kernel(tri, tx, ty, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, tiles_x,
                  nt, nl, zmax, zmin, func, keep, noread, ops, events):
-    """Cull records whose z^ lies behind zmax in every touched box (Nilsson12 §3)."""
+    """Cull records whose z^ lies behind zmax in every touched box (Nilsson12 §3).
+
+    The counts are kept in locals and added once (the compiler cannot tell the
+    counter arrays from the boxes, so a count in them would be stored and
+    reloaded at every box)."""
+    lookups = 0
+    culled = 0
+    front_only = 0
     for i in range(tri.shape[0]):
         tile = ty[i] * tiles_x + tx[i]
         t0, t1 = _box_range(t_lo[i], t_hi[i], nt, 0.0, 1.0)
         a0, a1 = _box_range(u_lo[i], u_hi[i], nl, 1.0, 0.5)
         b0, b1 = _box_range(v_lo[i], v_hi[i], nl, 1.0, 0.5)
+        zl = z_lo[i]
+        zh = z_hi[i]
+        far = zmax[tile]
+        near = zmin[tile]
         behind = True
         front = True
         for it in range(t0, t1 + 1):
             for iu in range(a0, a1 + 1):
                 for iv in range(b0, b1 + 1):
                     box = (it * nl + iu) * nl + iv
-                    events[EV_LOOKUPS] += 1
-                    zm = zmax[tile, box]
+                    lookups += 1
+                    zm = far[box]
                     if func == CULL_LESS:
-                        if z_lo[i] < zm:
+                        if zl < zm:
                             behind = False
                     else:
-                        if z_lo[i] <= zm:
+                        if zl <= zm:
                             behind = False
-                    if not z_hi[i] < zmin[tile, box]:
+                    if not zh < near[box]:
                         front = False
-                    ops[OP_CMP] += 2
-        ops[OP_MUL] += 6
         keep[i] = not behind
         noread[i] = front and not behind
         if not behind:
@@ -98,12 +107,17 @@ def zcull_kernel(tri, tx, ty, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, z_lo, z_hi, ti
                 for iu in range(a0, a1 + 1):
                     for iv in range(b0, b1 + 1):
                         box = (it * nl + iu) * nl + iv
-                        if z_lo[i] < zmin[tile, box]:
-                            zmin[tile, box] = z_lo[i]
+                        if zl < near[box]:
+                            near[box] = zl
         if behind:
-            events[EV_CULLED] += 1
+            culled += 1
         elif front:
-            events[EV_NOREAD] += 1
+            front_only += 1
+    events[EV_LOOKUPS] += lookups
+    events[EV_CULLED] += culled
+    events[EV_NOREAD] += front_only
+    ops[OP_CMP] += 2 * lookups
+    ops[OP_MUL] += 6 * tri.shape[0]
 
 
 @nb.njit(cache=True, nogil=True)
