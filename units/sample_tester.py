@@ -1255,12 +1255,15 @@ class SampleTester:
 
     def run(self, tiles: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
         """Test a batch of tile records; its covered samples come out in arrays of their own (the kernel
-        writes them there, grown as needed: no copy)."""
+        writes them there; when they run out of room it stops between records, and they are grown, copying
+        what was written). Sized at 2.5 times the last batch's covered samples per record: the default
+        pass at 256 spp then grows them at 19 of its 353 batches, copying 2.7 million samples (5.2 million
+        at 1.25 times); memory is touched only where written."""
         s = self.samples
         n_rec = len(tiles["tri"])
         tile_len = self.tile_size * self.tile_size * s.spp  # a record's covered samples at most
         bound = n_rec * tile_len
-        size = min(bound, int(1.25 * self._per_record * n_rec) + 2 * tile_len)
+        size = min(bound, int(2.5 * self._per_record * n_rec) + 2 * tile_len)
         out = SAMPLE.allocate(size, fill=False)
         ops = np.zeros(N_OPS, np.int64)
         events = np.zeros(len(EVENTS), np.int64)
