@@ -29,7 +29,7 @@ from pipeline_sim.errors import UserError
 from pipeline_sim.pass_state import PassState
 from pipeline_sim.pipeline import Stage, TimingResult, chunks, count_records, cycles_for, run_in_order, simulate
 from pipeline_sim.regions import (RegionBatch, RegionCursor, RegionPlan, RegionSamples, bin_triangles, plan_regions,
-                                  region_step, row_step)
+                                  record_count, region_step, row_step)
 from pipeline_sim.sampling import make_samples
 from pipeline_sim.shaders import standard_params, standard_shader
 from pipeline_sim.simulation import SimOptions
@@ -65,6 +65,10 @@ SETUP_BYTES_OUT = 3 * 4 * 4 * 2 + 3 * 2 * 4 * 2 + 64
 TILE_RECORD_BYTES = 12
 INTERVAL_BYTES = 32
 SAMPLE_RECORD_BYTES = 28
+# the smallest ROP batch worth a step on the ROP's own thread: a smaller one costs less on the simulation's thread
+# than handing it over (the default pass's batches: about 1,500 samples at 16 spp, where every ROP step on its
+# own thread measured 0.336 against 0.288 s in one alternating run; about 24,000 at 256 spp, 3% faster)
+ROP_AHEAD_MIN_SAMPLES = 4096
 
 
 @dataclass
@@ -390,7 +394,8 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     # first batch)
     ahead = {"tile_test": lambda batch: True, "sample_tester": lambda batch: batch.region == tester_at.region,
              "shading": (lambda batch: True) if conservative else lambda batch: batch.region == shading_at.region,
-             "rop": lambda batch: batch.region == rop_at.region}
+             "rop": lambda batch: (batch.region == rop_at.region
+                                   and record_count(batch.records) >= ROP_AHEAD_MIN_SAMPLES)}
     # the ROP's timed refresh of z-cull is published when the simulation reaches the step that made it
     settle = {"rop": zcull.publish_refresh} if zcull.active and not ordered else {}
     stages = [Stage(name, fn, lat, ahead=ahead.get(name), settle=settle.get(name))

@@ -30,6 +30,7 @@ import pytest
 from pipeline_sim.config import load_arch, pass_settings
 from pipeline_sim.draw import draw_from_clip
 from pipeline_sim.pipeline import Stage, chunks, cycles_for, simulate
+from pipeline_sim import render as render_module
 from pipeline_sim.render import UNIT_ORDER, RenderPass, run_pass
 
 NEG = float("-inf")
@@ -601,6 +602,7 @@ def test_run_ahead_changes_nothing_but_the_thread(draw, regions, monkeypatch):
 
     from units.zcull import ZCull
 
+    monkeypatch.setattr(render_module, "ROP_AHEAD_MIN_SAMPLES", 0)  # this draw's ROP batches are small
     threads = _threads_of(monkeypatch, {"sample_tester": SampleTester, "shading": Shading, "rop": Rop})
     seen = []  # the z-cull boxes each z-cull batch is tested against
     zcull_run = ZCull.run
