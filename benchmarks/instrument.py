@@ -115,10 +115,16 @@ def direct(order: list[int] | None):
 
     def simulate(stages, source_batches, queue_depth, capacities=None, run_ahead=0):
         n = len(stages)
-        steps = [s.step for s in stages]
+
+        def step(i, batch):  # a stage's step and its settle (the ROP's z-cull refresh published), as SimPy does
+            outs, _ = stages[i].step(batch)
+            if stages[i].settle is not None:
+                stages[i].settle()
+            return outs
+
         if order is None:
             def push(i, batch):
-                outs, _ = steps[i](batch)
+                outs = step(i, batch)
                 if i + 1 < n:
                     for o in outs:
                         push(i + 1, o)
@@ -129,7 +135,7 @@ def direct(order: list[int] | None):
             queues[0].extend(source_batches)
             last = n - 1
             for i in order:
-                outs, _ = steps[i](queues[i].popleft())
+                outs = step(i, queues[i].popleft())
                 if i < last:
                     queues[i + 1].extend(outs)
         return _empty_timing()

@@ -72,9 +72,10 @@ BYTES = {
     "sample_record": 2 * 29,
     # a shaded sample's RGBA colour (float32), of a batch shaded ahead
     "shaded_sample": 16,
-    # a tile of the frame in z-cull: zmin and zmax per (t, u, v) box
-    # (float32 each, boxes counted below), and its refresh state (9 B)
-    "zcull_box": 2 * 4,
+    # a tile of the frame in z-cull: zmin, zmax and the ROP's refreshed zmax
+    # per (t, u, v) box (float32 each, boxes counted below), and its refresh
+    # state (9 B)
+    "zcull_box": 3 * 4,
     "zcull_tile": 9,
     # a shading-cache entry: tag, stamp (int64), request (int32), RGBA float32
     "cache_entry": 8 + 8 + 4 + 16,

@@ -29,7 +29,7 @@ from pipeline_sim.errors import UserError
 from pipeline_sim.pass_state import PassState
 from pipeline_sim.pipeline import Stage, TimingResult, chunks, count_records, cycles_for, run_in_order, simulate
 from pipeline_sim.regions import (RegionBatch, RegionCursor, RegionPlan, RegionSamples, bin_triangles, plan_regions,
-                                  record_count, region_step, row_step)
+                                  region_step, row_step)
 from pipeline_sim.sampling import make_samples
 from pipeline_sim.shaders import standard_params, standard_shader
 from pipeline_sim.simulation import SimOptions
@@ -394,8 +394,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     # first batch)
     ahead = {"tile_test": lambda batch: True, "sample_tester": lambda batch: batch.region == tester_at.region,
              "shading": (lambda batch: True) if conservative else lambda batch: batch.region == shading_at.region,
-             "rop": lambda batch: (batch.region == rop_at.region
-                                   and record_count(batch.records) >= ROP_AHEAD_MIN_SAMPLES)}
+             "rop": lambda batch: batch.region == rop_at.region and len(batch) >= ROP_AHEAD_MIN_SAMPLES}
     # the ROP's timed refresh of z-cull is published when the simulation reaches the step that made it
     settle = {"rop": zcull.publish_refresh} if zcull.active and not ordered else {}
     stages = [Stage(name, fn, lat, ahead=ahead.get(name), settle=settle.get(name))

@@ -27,10 +27,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from pipeline_sim import render as render_module
 from pipeline_sim.config import load_arch, pass_settings
 from pipeline_sim.draw import draw_from_clip
 from pipeline_sim.pipeline import Stage, chunks, cycles_for, simulate
-from pipeline_sim import render as render_module
 from pipeline_sim.render import UNIT_ORDER, RenderPass, run_pass
 
 NEG = float("-inf")
@@ -599,7 +599,6 @@ def test_run_ahead_changes_nothing_but_the_thread(draw, regions, monkeypatch):
     from units.rop import Rop
     from units.sample_tester import SampleTester
     from units.shading_cache import Shading
-
     from units.zcull import ZCull
 
     monkeypatch.setattr(render_module, "ROP_AHEAD_MIN_SAMPLES", 0)  # this draw's ROP batches are small

@@ -27,8 +27,7 @@ from pipeline_sim.pass_state import PassState
 from pipeline_sim.shaders import (IN_B, IN_G, IN_PX, IN_PY, IN_R, IN_T, IN_TRIANGLE, IN_U, IN_V, IN_X, IN_Y,
                                   N_INPUTS, standard_shader)
 from units.shading_cache import (EVENTS, REPL_FIFO, REPL_LRU, Shading, cache_kernel, cache_scratch, cell_keys,
-                                 run_end,
-                                 deliver_colors, store_requests)
+                                 deliver_colors, run_end, store_requests)
 
 EV = {name: i for i, name in enumerate(EVENTS)}
 

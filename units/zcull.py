@@ -382,7 +382,8 @@ class ZCull:
                 publish: bool = True) -> np.ndarray:
         """Refresh the boxes of the tiles touched by the samples ``pix, sidx`` from the ROP's
         ``depth`` (``prior``: the depth each one replaced, NaN: none); returns the work done,
-        laid out as ``REFRESH_WORK``. Called through ``Rop.refresh_zcull`` only.
+        laid out as ``REFRESH_WORK``. Called through ``Rop.refresh_zcull`` (and by ``pipeline_sim.jit``'s
+        warm-up).
 
         The new boxes go to ``refreshed_zmax``, which the next refresh starts from, and, with
         ``publish``, to ``zmax`` at once; else they wait, in order, for ``publish_refresh`` (the ROP
