@@ -350,6 +350,15 @@ def test_unpublished_refreshes_reach_the_test_in_order(lag):
                     np.testing.assert_array_equal(later[2].zmax.view(np.uint32), published[k].view(np.uint32))
                 waiting = 0
     assert len({p.tobytes() for p in published}) > 6
+    for k in range(len(published) - waiting, len(published)):  # those still waiting
+        later[2].publish_refresh()
+        np.testing.assert_array_equal(later[2].zmax.view(np.uint32), published[k].view(np.uint32))
+    with pytest.raises(RuntimeError, match="no z-cull refresh waits"):
+        later[2].publish_refresh()
+    request, *_ = later[3].run(batch)
+    later[3].refresh_zcull([request], publish=False)
+    with pytest.raises(RuntimeError, match="would overtake"):
+        later[3].refresh_zcull([request])
 
 
 def test_refresh_rescans_a_new_depth_buffer():

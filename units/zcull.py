@@ -389,6 +389,8 @@ class ZCull:
         ``publish``, to ``zmax`` at once; else they wait, in order, for ``publish_refresh`` (the ROP
         working ahead of the simulation on a thread of its own: z-cull sees each refresh when the
         simulation reaches the ROP step that made it, as if made then)."""
+        if publish and self._unpublished:
+            raise RuntimeError("a z-cull refresh published while earlier ones wait: it would overtake them")
         work = np.zeros(len(REFRESH_WORK), np.int64)
         tiles = _NO_TILES
         if self.active and len(pix):
@@ -424,5 +426,7 @@ class ZCull:
 
     def publish_refresh(self) -> None:
         """Let the z-cull test see the oldest refresh made with ``publish`` off."""
+        if not self._unpublished:
+            raise RuntimeError("no z-cull refresh waits to be published")
         tiles, rows = self._unpublished.popleft()
         self.zmax[tiles] = rows
