@@ -116,11 +116,8 @@ def direct(order: list[int] | None):
     def simulate(stages, source_batches, queue_depth, capacities=None, run_ahead=0):
         n = len(stages)
 
-        def step(i, batch):  # a stage's step and its settle (the ROP's z-cull refresh published), as SimPy does
-            outs, _ = stages[i].step(batch)
-            if stages[i].settle is not None:
-                stages[i].settle()
-            return outs
+        def step(i, batch):  # with its settle (the ROP's z-cull refresh published), as SimPy does
+            return stages[i].step_and_settle(batch)[0]
 
         if order is None:
             def push(i, batch):

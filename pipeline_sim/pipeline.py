@@ -172,6 +172,13 @@ class Stage:
     finished: float = 0.0
     trace: list[tuple[float, float, str]] = field(default_factory=list)
 
+    def step_and_settle(self, payload: Any) -> tuple[list[Any], float]:
+        """Step ``payload`` now and settle it: what a stage stepped in simulated order does."""
+        result = self.step(payload)
+        if self.settle is not None:
+            self.settle()
+        return result
+
     def mark(self, start: float, end: float, state: str) -> None:
         if end > start:
             self.trace.append((start, end, state))
@@ -387,9 +394,7 @@ def run_in_order(stages: list[Stage], source_batches: list[Any], after_batch: Ca
     last = len(stages) - 1
 
     def push(i: int, batch: Any) -> None:
-        outputs, cycles = stages[i].step(batch)
-        if stages[i].settle is not None:
-            stages[i].settle()
+        outputs, cycles = stages[i].step_and_settle(batch)
         logs[i].append([[record_count(o) for o in outputs], cycles])
         if i < last:
             for o in outputs:

@@ -30,7 +30,7 @@ import pytest
 from pipeline_sim import render as render_module
 from pipeline_sim.config import load_arch, pass_settings
 from pipeline_sim.draw import draw_from_clip
-from pipeline_sim.pipeline import Stage, chunks, cycles_for, simulate
+from pipeline_sim.pipeline import Stage, chunks, cycles_for, run_in_order, simulate
 from pipeline_sim.render import UNIT_ORDER, RenderPass, run_pass
 
 NEG = float("-inf")
@@ -381,6 +381,20 @@ def test_run_ahead_steps_in_order_one_at_a_time_and_times_the_same(depth):
         pd.testing.assert_frame_equal(res.queues, plain.queues)
         assert res.traces == plain.traces
     assert on_worker > 50  # the run-ahead thread did step batches
+
+
+def test_run_in_order_settles_each_step_after_it():
+    """``run_in_order`` steps every stage in submission order and settles each step right after it, as
+    the simulation does when it takes a step's result."""
+    log = []
+
+    def stage(name, fan):
+        return Stage(name, lambda it: (log.append((name, it)) or [it] * fan, 1.0), 0,
+                     settle=lambda: log.append((name, "settled")))
+
+    run_in_order([stage("a", 2), stage("b", 1)], [0, 1], lambda: 0.0)
+    assert log == [("a", 0), ("a", "settled"), ("b", 0), ("b", "settled"), ("b", 0), ("b", "settled"),
+                   ("a", 1), ("a", "settled"), ("b", 1), ("b", "settled"), ("b", 1), ("b", "settled")]
 
 
 def test_run_ahead_passes_an_exception_on():

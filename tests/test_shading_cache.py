@@ -240,21 +240,25 @@ def test_run_end_finds_each_run_of_equal_values(runs):
         assert run_end(values, i) == ends[np.searchsorted(ends, i, side="right")]
 
 
-def test_cell_keys_in_long_runs_equal_keys_one_by_one():
-    """Runs longer than ``run_end``'s blocks, ending on a block edge and inside one: the keys of the whole
-    stream equal those of each sample on its own."""
+def test_cell_keys_in_long_runs_against_float64_keys():
+    """Runs of one triangle longer than ``run_end``'s blocks, ending on a block edge and inside one: each
+    sample's key is its (triangle, cell) computed here in float64 (``key_of``)."""
     rng, ref = _setup(37, ntri=6, size=9.0, rate=1.0)
-    tri, b0, b1, b2, _ = make_stream(rng, ref, 700, 1.0)
     tri = np.repeat(np.arange(6, dtype=np.int32), [65, 64, 1, 200, 129, 241])
-    whole = np.empty(len(tri), np.int64)
-    one = np.empty(1, np.int64)
-    n_in_front = cell_keys(tri, b0, b1, b2, ref, 1.0, whole)
-    singles = []
-    for k in range(len(tri)):
-        cell_keys(tri[k:k + 1], b0[k:k + 1], b1[k:k + 1], b2[k:k + 1], ref, 1.0, one)
-        singles.append(one[0])
-    np.testing.assert_array_equal(whole, singles)
-    assert n_in_front == len(tri) and len(set(singles)) > 50
+    bs, expect = [], []
+    for t in tri:
+        while True:  # away from cell borders, where float32 and float64 may disagree
+            b = rng.dirichlet([1.0, 1.0, 1.0]).astype(np.float32)
+            (_, cx, cy), margin = key_of(ref, t, b, 1.0)
+            if margin >= 1e-3:
+                break
+        bs.append(b)
+        expect.append((int(t) << 42) + ((cy + 2**20) << 21) + cx + 2**20)
+    b0, b1, b2 = np.array(bs).T.copy()
+    got = np.empty(len(tri), np.int64)
+    n_in_front = cell_keys(tri, b0, b1, b2, ref, 1.0, got)
+    np.testing.assert_array_equal(got, expect)
+    assert n_in_front == len(tri) and len(set(expect)) > 50
 
 
 @pytest.mark.parametrize("rate", [1.0, 2.0, 0.75])

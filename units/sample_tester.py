@@ -23,6 +23,7 @@ same for the two triangles that share an edge, which makes it watertight.
 from __future__ import annotations
 
 import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import numba as nb
 import numpy as np
@@ -1160,22 +1161,13 @@ class TileMajorLayouts:
         if len(parts) == 1:
             lay_out(0)
         else:  # (the kernel runs without the interpreter lock; the halves write apart)
-            failed: list[BaseException] = []
-
-            def lay_out_later_rows() -> None:
-                try:
-                    lay_out(1)
-                except BaseException as error:  # raised on the calling thread below
-                    failed.append(error)
-
-            helper = threading.Thread(target=lay_out_later_rows, name="tile-major-layout")
-            helper.start()
+            helper = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tile-major-layout")
+            later_rows = helper.submit(lay_out, 1)
             try:
                 lay_out(0)
             finally:
-                helper.join()
-            if failed:
-                raise failed[0]
+                helper.shutdown(wait=True)
+            later_rows.result()  # the helper's error, if any, raised here
         lo, hi, stats = out[0]
         for lo_b, hi_b, st_b in out[1:]:  # the later rows' bounds as one pass over all rows would take them
             lo[:] = np.where(lo_b < lo, lo_b, lo)
