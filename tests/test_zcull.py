@@ -15,6 +15,8 @@ import dataclasses
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import pipeline_sim.render as render
 import units.rop as rop_mod
@@ -530,3 +532,53 @@ def test_interval_query_answer_and_work_against_a_loop_over_boxes(func, seed):
     assert answer.tolist() == [int(want), tiles * (1 if want else 2), boxes * (1 if want else 2)]
     assert ops[OP_CMP] == answer[zc.Q_BOXES]
     assert want == (seed >= 2 or (seed == 1 and func == zc.CULL_LEQUAL))
+
+
+_DEPTHS = st.sampled_from([0.0, 0.25, 0.5, 0.75, 1.0])
+_UNIT = st.one_of(st.sampled_from([0.0, 0.25, 0.5, 0.75, 1.0]), st.floats(0.0, 1.0))
+_SIGNED = st.one_of(st.sampled_from([-1.0, -0.5, 0.0, 0.5, 1.0]), st.floats(-1.0, 1.0))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.sampled_from([(1, 1), (2, 1), (4, 2), (3, 3)]), st.sampled_from(["less", "lequal"]),
+       st.lists(st.tuples(_UNIT, _SIGNED, _SIGNED, _DEPTHS), min_size=0, max_size=40),
+       st.lists(st.tuples(_UNIT, _UNIT, _SIGNED, _SIGNED, _SIGNED, _SIGNED, _DEPTHS, _DEPTHS),
+                min_size=1, max_size=12))
+def test_zcull_never_culls_what_the_depth_test_could_pass(boxes, func, drawn, records):
+    """The z-cull test against the exact depth test, on random and tied inputs: boxes whose zmax and zmin
+    are the largest and smallest depth of the samples drawn in them (-inf and +inf with none), and
+    records of random (t, u, v) intervals and depth ranges. A culled record has no drawn sample in its
+    intervals that a depth in its range could pass; a record let through without depth reads passes at
+    every such sample; the counts are those of the records so found."""
+    nt, nl = boxes
+    nbox = nt * nl * nl
+    zmax = np.full((1, nbox), -np.inf, np.float32)
+    zmin = np.full((1, nbox), np.inf, np.float32)
+    pts = [(np.float32(t if t < 1.0 else 0.999), np.float32(u), np.float32(v), np.float32(d)) for t, u, v, d in drawn]
+    for t, u, v, d in pts:
+        b = zc._sample_box(t, u, v, nt, nl)
+        zmax[0, b] = max(zmax[0, b], d)
+        zmin[0, b] = min(zmin[0, b], d)
+    n = len(records)
+    cols = {k: np.empty(n, np.float32) for k in ("t_lo", "t_hi", "u_lo", "u_hi", "v_lo", "v_hi", "z_lo", "z_hi")}
+    for i, (ta, tb, ua, ub, va, vb, za, zb) in enumerate(records):
+        for key, (a, b) in zip(("t", "u", "v", "z"), ((ta, tb), (ua, ub), (va, vb), (za, zb))):
+            cols[f"{key}_lo"][i], cols[f"{key}_hi"][i] = min(a, b), max(a, b)
+    keep = np.empty(n, np.bool_)
+    noread = np.empty(n, np.bool_)
+    ops, events = np.zeros(N_OPS, np.int64), np.zeros(len(zc.EVENTS), np.int64)
+    zeros = np.zeros(n, np.int32)
+    zc.zcull_kernel(zeros, zeros, zeros, cols["t_lo"], cols["t_hi"], cols["u_lo"], cols["u_hi"], cols["v_lo"],
+                    cols["v_hi"], cols["z_lo"], cols["z_hi"], 1, nt, nl, zmax, zmin.copy(),
+                    zc.CULL_LESS if func == "less" else zc.CULL_LEQUAL, keep, noread, ops, events)
+    passes = (lambda z, d: z < d) if func == "less" else (lambda z, d: z <= d)  # noqa: E731
+    for i in range(n):
+        inside = [d for t, u, v, d in pts
+                  if cols["t_lo"][i] <= t <= cols["t_hi"][i] and cols["u_lo"][i] <= u <= cols["u_hi"][i]
+                  and cols["v_lo"][i] <= v <= cols["v_hi"][i]]
+        if not keep[i]:  # the nearest depth of the record fails against every drawn sample it could meet
+            assert not any(passes(cols["z_lo"][i], d) for d in inside), (i, inside)
+        if noread[i]:  # the farthest depth of the record is in front of every drawn sample it could meet
+            assert keep[i] and all(cols["z_hi"][i] < d for d in inside), (i, inside)
+    assert events[zc.EV_CULLED] == np.count_nonzero(~keep)
+    assert events[zc.EV_NOREAD] == np.count_nonzero(noread)
