@@ -28,13 +28,18 @@ takes the result when it gets to the batch. What a step makes that other
 units read waits for that moment: the stage's ``settle`` runs then, on the
 simulation's thread (the ROP's publishes the z-cull refresh its step made).
 The numba kernels release the interpreter lock, so one unit's kernel runs
-beside the others' and the SimPy layer on another core. The stage steps the
-same batches in the same order either way, and settles them at the same
-simulated times: images, counters and cycles do not change.
+beside the others' and the SimPy layer on another core. Handing a batch to
+another thread has a cost of its own (a thread woken, results handed back),
+so with ``run_ahead_min_seconds`` only a batch whose step is expected to take
+at least that long goes: the stage's time per record over its steps so far
+times the batch's records. The stage steps the same batches in the same
+order either way, and settles them at the same simulated times: images,
+counters and cycles do not change.
 """
 
 from __future__ import annotations
 
+import time
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -204,22 +209,41 @@ class _RunAhead:
     The batches are numbered in the order they enter the stage's FIFO, which
     is the order the stage steps them. Steps start in that order, at most
     ``depth`` not yet taken up by the stage, each only when ``stage.ahead``
-    allows it; the first batch it does not allow stops the run-ahead until
-    the stage has stepped that batch itself. So every step runs after all
-    the steps before it and before all those after it, one at a time, as
-    without run-ahead.
+    allows it and it is worth handing over (``worth``); the first batch that
+    does not start stops the run-ahead until the stage has stepped that batch
+    itself. So every step runs after all the steps before it and before all
+    those after it, one at a time, as without run-ahead.
     """
 
-    def __init__(self, stage: Stage, fifo: Fifo, pool: ThreadPoolExecutor, depth: int):
+    def __init__(self, stage: Stage, fifo: Fifo, pool: ThreadPoolExecutor, depth: int, min_seconds: float = 0.0):
         self.stage = stage
         self.fifo = fifo
         self.pool = pool
         self.depth = depth
+        self.min_seconds = min_seconds
         self.admitted = 0  # items that have entered the FIFO (the end marker included)
         self.stepped = 0  # batches the stage has stepped
         self.frontier = 0  # the first batch neither started nor stepped
         self.started: dict[int, Future] = {}  # by batch number
+        # the stage's steps so far, wherever they ran (one at a time): seconds and records
+        self.seconds = 0.0
+        self.records = 0
         fifo.on_admit = self.admit
+
+    def worth(self, payload: Any) -> bool:
+        """Whether ``payload``'s step is expected to take at least ``min_seconds``: the stage's seconds per
+        record so far times its records (none measured yet: no)."""
+        if self.min_seconds <= 0:
+            return True
+        return self.records > 0 and self.seconds * record_count(payload) >= self.min_seconds * self.records
+
+    def timed_step(self, payload: Any) -> tuple[list[Any], float]:
+        """The stage's step of ``payload``, its time and records added to the stage's."""
+        t0 = time.perf_counter()
+        result = self.stage.step(payload)
+        self.seconds += time.perf_counter() - t0
+        self.records += record_count(payload)
+        return result
 
     def admit(self) -> None:
         self.admitted += 1
@@ -234,9 +258,9 @@ class _RunAhead:
             if k < 0 or k >= len(items):  # the stage holds it (taken, not yet stepped), or none is there
                 return
             item = items[k][0]
-            if item is END or not self.stage.ahead(item[1]):
+            if item is END or not self.stage.ahead(item[1]) or not self.worth(item[1]):
                 return
-            self.started[self.frontier] = self.pool.submit(self.stage.step, item[1])
+            self.started[self.frontier] = self.pool.submit(self.timed_step, item[1])
             self.frontier += 1
 
     def step(self, payload: Any) -> tuple[list[Any], float]:
@@ -246,7 +270,7 @@ class _RunAhead:
         if future is not None:
             result = future.result()
         else:
-            result = self.stage.step(payload)
+            result = self.timed_step(payload)
             self.frontier = self.stepped + 1
         self.stepped += 1
         self.top_up()
@@ -320,14 +344,17 @@ class TimingResult:
 
 
 def simulate(stages: list[Stage], source_batches: list[Any], queue_depth: int,
-             capacities: list[int] | None = None, run_ahead: int = 0) -> TimingResult:
+             capacities: list[int] | None = None, run_ahead: int = 0,
+             run_ahead_min_seconds: float = 0.0) -> TimingResult:
     """Run the stages in order, fed with ``source_batches``, and time them.
 
     Each channel (the input of each stage) holds ``queue_depth`` batches, or,
     with ``capacities``, that many records (one number per stage input); its
     capacity and occupancy are reported in that unit. ``run_ahead``: how many
     batches a stage with ``ahead`` may have started on its run-ahead thread
-    (0: none, every step runs when the simulation reaches it).
+    (0: none, every step runs when the simulation reaches it);
+    ``run_ahead_min_seconds``: only batches whose step is expected to take
+    that long (``_RunAhead.worth``; 0: all).
     """
     env = simpy.Environment()
     names = ["input"] + [f"{a.name}->{b.name}" for a, b in zip(stages, stages[1:])]
@@ -341,7 +368,8 @@ def simulate(stages: list[Stage], source_batches: list[Any], queue_depth: int,
              if run_ahead and s.ahead is not None else None for s in stages]
     for i, stage in enumerate(stages):
         out = channels[i + 1] if i + 1 < len(channels) else None
-        ahead = _RunAhead(stage, channels[i].store, pools[i], run_ahead) if pools[i] is not None else None
+        ahead = (_RunAhead(stage, channels[i].store, pools[i], run_ahead, run_ahead_min_seconds)
+                 if pools[i] is not None else None)
         env.process(_stage_process(env, stage, channels[i], out, ahead))
     try:
         env.run()

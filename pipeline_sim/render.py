@@ -65,10 +65,6 @@ SETUP_BYTES_OUT = 3 * 4 * 4 * 2 + 3 * 2 * 4 * 2 + 64
 TILE_RECORD_BYTES = 12
 INTERVAL_BYTES = 32
 SAMPLE_RECORD_BYTES = 28
-# the smallest ROP batch worth a step on the ROP's own thread: a smaller one costs less on the simulation's thread
-# than handing it over (the default pass's batches: about 1,500 samples at 16 spp, where every ROP step on its
-# own thread measured 0.336 against 0.288 s in one alternating run; about 24,000 at 256 spp, 3% faster)
-ROP_AHEAD_MIN_SAMPLES = 4096
 
 
 @dataclass
@@ -394,7 +390,7 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     # first batch)
     ahead = {"tile_test": lambda batch: True, "sample_tester": lambda batch: batch.region == tester_at.region,
              "shading": (lambda batch: True) if conservative else lambda batch: batch.region == shading_at.region,
-             "rop": lambda batch: batch.region == rop_at.region and len(batch) >= ROP_AHEAD_MIN_SAMPLES}
+             "rop": lambda batch: batch.region == rop_at.region}
     # the ROP's timed refresh of z-cull is published when the simulation reaches the step that made it
     settle = {"rop": zcull.publish_refresh} if zcull.active and not ordered else {}
     stages = [Stage(name, fn, lat, ahead=ahead.get(name), settle=settle.get(name))
@@ -426,7 +422,8 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
         capacities = [pcfg.queue_depth * per_kind[INPUT_KIND[st.name]] for st in stages]
         if ordered:
             stages = run_in_order(stages, tri_batches, after_triangle_batch)
-        timing = simulate(stages, tri_batches, pcfg.queue_depth, capacities, run_ahead=sim.run_ahead)
+        timing = simulate(stages, tri_batches, pcfg.queue_depth, capacities, run_ahead=sim.run_ahead,
+                          run_ahead_min_seconds=sim.run_ahead_min_us * 1e-6)
         image = rop.resolve()
         depth = rop.depth_samples()
         one_set = samples.region(0) if plan.count == 1 else None

@@ -383,6 +383,41 @@ def test_run_ahead_steps_in_order_one_at_a_time_and_times_the_same(depth):
     assert on_worker > 50  # the run-ahead thread did step batches
 
 
+def test_run_ahead_hands_over_only_steps_expected_to_take_long_enough():
+    """With ``run_ahead_min_seconds``, a stage's first step runs on the main thread (nothing measured
+    yet); after that a batch goes to the run-ahead thread exactly when the stage's seconds per record so
+    far times its records reach the minimum. The timing is that of the plain simulation."""
+    per_record = 2e-3  # the step sleeps this long per record of its batch
+    sizes = [3, 1, 4, 1, 5, 9, 2, 6, 5, 3, 5, 1, 1, 8]
+    min_seconds = 7e-3  # between the batches of 3 and 4 records
+    where, expected, done = [], [], [0.0, 0]
+
+    def b(batch):
+        where.append(threading.current_thread() is threading.main_thread())
+        time.sleep(per_record * len(batch))
+        return [batch], float(len(batch))
+
+    def stages(ahead):
+        return [Stage("a", lambda it: ([list(range(sizes[it]))], 1.0), 0),
+                Stage("b", b, 0, ahead=ahead), Stage("c", lambda batch: ([], 1.0), 0)]
+
+    plain = simulate(stages(None), list(range(len(sizes))), 2)
+    where.clear()
+    res = simulate(stages(lambda batch: True), list(range(len(sizes))), 2, run_ahead=1,
+                   run_ahead_min_seconds=min_seconds)
+    assert where[0]  # the first step measures the stage
+    # the steps that ran on the worker were those predicted (from the measured rate) to take long enough;
+    # a sleep takes at least its time, so a batch of 4 or more records always qualified once measured
+    assert not all(where[1:])
+    for k, size in enumerate(sizes[1:], 1):
+        if size >= 4:
+            assert not where[k], (k, size)
+        elif size <= 2:
+            assert where[k], (k, size)
+    assert res.frame_cycles == plain.frame_cycles
+    pd.testing.assert_frame_equal(res.units, plain.units)
+
+
 def test_run_in_order_settles_each_step_after_it():
     """``run_in_order`` steps every stage in submission order and settles each step right after it, as
     the simulation does when it takes a step's result."""
@@ -615,7 +650,6 @@ def test_run_ahead_changes_nothing_but_the_thread(draw, regions, monkeypatch):
     from units.shading_cache import Shading
     from units.zcull import ZCull
 
-    monkeypatch.setattr(render_module, "ROP_AHEAD_MIN_SAMPLES", 0)  # this draw's ROP batches are small
     threads = _threads_of(monkeypatch, {"sample_tester": SampleTester, "shading": Shading, "rop": Rop})
     seen = []  # the z-cull boxes each z-cull batch is tested against
     zcull_run = ZCull.run
@@ -628,8 +662,10 @@ def test_run_ahead_changes_nothing_but_the_thread(draw, regions, monkeypatch):
 
     def result(run_ahead):
         seen.clear()
+        # (this draw's batches are far too small to be worth handing over: every one is)
         settings = [f"simulation.run_ahead={run_ahead}", f"simulation.region_samples={regions}",
-                    "simulation.tiles_per_batch=16", "simulation.samples_per_batch=256"]
+                    "simulation.tiles_per_batch=16", "simulation.samples_per_batch=256",
+                    "simulation.run_ahead_min_us=0"]
         for log in threads.values():
             log.clear()
         res = run_pass(RenderPass(draw=draw, **pass_settings(settings), spp=SPP))
@@ -665,7 +701,7 @@ def test_conservative_shading_ahead_changes_nothing_but_the_thread(draw, monkeyp
     def result(run_ahead):
         names.clear()
         settings = pass_settings([f"simulation.run_ahead={run_ahead}", "pass.mode=conservative",
-                                  "simulation.tiles_per_batch=16"])
+                                  "simulation.tiles_per_batch=16", "simulation.run_ahead_min_us=0"])
         return run_pass(RenderPass(draw=draw, **settings, spp=SPP)), list(names)
 
     (one, one_names), (ahead, ahead_names) = result(0), result(2)
