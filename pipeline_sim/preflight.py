@@ -59,11 +59,11 @@ BYTES = {
     # the binning's triangle lists
     "triangle": 2000,
     # a sample (x, y, u, v, t float32 and a tuple index) in the three most
-    # recent regions' sample sets (3 x 21 B), the sample tester's two
-    # tile-major copies of the current region and of the next, made ahead
-    # (4 x 21 B), the ROP's depth and colour, twice while one replaces the
-    # other (2 x 20 B), and z-cull's box index (1 B)
-    "region_sample": 3 * 21 + 4 * 21 + 2 * 20 + 1,
+    # recent regions' sample sets (3 x 21 B), the sample tester's tile-major
+    # copies of the current region and of the next, made ahead (2 x 21 B),
+    # the ROP's depth and colour, twice while one replaces the other
+    # (2 x 20 B), and z-cull's box index (1 B)
+    "region_sample": 3 * 21 + 2 * 21 + 2 * 20 + 1,
     # a tile record out of the tile traverser (triangle, x, y: 3 x int32)
     "tile_record": 12,
     # a covered-sample record out of the sample tester (triangle, pixel,

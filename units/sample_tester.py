@@ -491,8 +491,8 @@ def _put(o, q, b_tri, pix0, za, zb, nr, poff, psid, pz, pb0, pb1, pb2, out_tri, 
 
 @nb.njit(cache=True)
 def _flush(n, nb, nq, b_tri, b_static, b_c, b_z3, backface_culling, b_eps, pt, pu, pv, px, py, pok, pz, pb0, pb1,
-           pb2, poff, psid, ppix, rb_end, rb_slotted, rb_pix0, rb_area, rb_za, rb_zb, rb_nr, cnt, out_tri, out_pix,
-           out_sidx, out_z, out_b0, out_b1, out_b2, out_noread):
+           pb2, poff, psid, ppix, rb_end, rb_pix0, rb_area, rb_za, rb_zb, rb_nr, cnt, order, out_tri, out_pix, out_sidx,
+           out_z, out_b0, out_b1, out_b2, out_noread):
     """Pass 2 on a batch (the candidates of consecutive records of one
     triangle) and its covered samples out from record ``n``; returns the
     next free record."""
@@ -507,9 +507,9 @@ def _flush(n, nb, nq, b_tri, b_static, b_c, b_z3, backface_culling, b_eps, pt, p
         py[q] = nan
     _pass2(b_static, nq_pad, pt, pu, pv, px, py, b_c, b_z3, backface_culling, b_eps, pok, pz, pb0, pb1, pb2)
     # covered samples out, record by record, in pixel-major order (row,
-    # column, sample) as the tile's pixels are scanned; slot-major
-    # candidates go through a counting sort by pixel (stable: they
-    # come slot by slot)
+    # column, sample) as a scan of the tile's pixels meets them: the
+    # candidates come slot by slot, so a counting sort by pixel (stable) of
+    # their indices in ``order``, then the outputs written in order
     q0 = 0
     for r in range(nb):
         q1 = rb_end[r]
@@ -517,35 +517,29 @@ def _flush(n, nb, nq, b_tri, b_static, b_c, b_z3, backface_culling, b_eps, pt, p
         zb = rb_zb[r]
         nr = rb_nr[r]
         pix0 = rb_pix0[r]
-        if rb_slotted[r]:
-            area = rb_area[r]
-            for p_ in range(area):
-                cnt[p_] = 0
-            for q in range(q0, q1):
-                uq = np.uint64(q)
-                if pok[uq]:
-                    cnt[np.uint64(ppix[uq])] += 1
-            acc = n
-            for p_ in range(area):
-                c_ = cnt[p_]
-                cnt[p_] = acc
-                acc += c_
-            for q in range(q0, q1):
-                uq = np.uint64(q)
-                if pok[uq]:
-                    kp = np.uint64(ppix[uq])
-                    o = np.uint64(cnt[kp])
-                    cnt[kp] = o + 1
-                    _put(o, uq, b_tri, pix0, za, zb, nr, poff, psid, pz, pb0, pb1, pb2, out_tri, out_pix, out_sidx,
-                         out_z, out_b0, out_b1, out_b2, out_noread)
-            n = acc
-        else:
-            for q in range(q0, q1):
-                uq = np.uint64(q)
-                if pok[uq]:
-                    _put(np.uint64(n), uq, b_tri, pix0, za, zb, nr, poff, psid, pz, pb0, pb1, pb2, out_tri, out_pix,
-                         out_sidx, out_z, out_b0, out_b1, out_b2, out_noread)
-                    n += 1
+        area = rb_area[r]
+        for p_ in range(area):
+            cnt[p_] = 0
+        for q in range(q0, q1):
+            uq = np.uint64(q)
+            if pok[uq]:
+                cnt[np.uint64(ppix[uq])] += 1
+        m = 0
+        for p_ in range(area):
+            c_ = cnt[p_]
+            cnt[p_] = m
+            m += c_
+        for q in range(q0, q1):
+            uq = np.uint64(q)
+            if pok[uq]:
+                kp = np.uint64(ppix[uq])
+                o = np.uint64(cnt[kp])
+                cnt[kp] = o + 1
+                order[o] = q
+        for o in range(m):
+            _put(np.uint64(n + o), np.uint64(order[np.uint64(o)]), b_tri, pix0, za, zb, nr, poff, psid, pz, pb0, pb1,
+                 pb2, out_tri, out_pix, out_sidx, out_z, out_b0, out_b1, out_b2, out_noread)
+        n += m
         q0 = q1
     return n
 
@@ -605,32 +599,30 @@ def _positions(words, n_words, out):
 @nb.njit(cache=True, nogil=True)
 def _tile_major(width, height, row0, spp, tile_size, ty0, ty1, x, y, u, v, t, tup, ax, ay, tu, tv, tt, ttup, slot_lo,
                 slot_hi, stats):
-    """The samples of tile rows ``ty0 .. ty1 - 1`` in the sample tester's two
-    tile-major orders, one after the other in each output array, in one pass
-    over them (``slot_lo``, ``slot_hi`` and ``stats`` cover those rows).
+    """The samples of tile rows ``ty0 .. ty1 - 1`` in the sample tester's
+    tile-major, slot-major order, in one pass over them (``slot_lo``,
+    ``slot_hi`` and ``stats`` cover those rows).
 
     Every tile's samples become contiguous, from ``base = (ty * tile_size *
     width + tx * tile_size * h) * spp`` (w x h: the tile's size, smaller at
     the right and bottom edges). Within the tile, pixel (r, c) sample s (its
-    index in the pixel's t-ordered samples) goes to ``base + (r * w + c) * spp
-    + s`` (pixel-major), and to ``n + base + s * w * h + r * w + c`` (n: the
-    number of samples; slot-major, so that a range of slots is a contiguous
-    run). ``ax, ay`` are absolute: the pixel's float32 coordinates plus the
+    index in the pixel's t-ordered samples) goes to ``base + s * w * h + r *
+    w + c``: slot by slot, so that a range of slots is a contiguous run.
+    ``ax, ay`` are absolute: the pixel's float32 coordinates plus the
     offsets, exactly as the tester adds them (the rows start at image row
-    ``row0``). ``slot_lo[s], slot_hi[s]``: the smallest and largest t of slot s
-    over all pixels (NaN ignored), so a tile's t^ selects a contiguous range
+    ``row0``). ``slot_lo[s], slot_hi[s]``: the smallest and largest t of slot
+    s over all pixels (NaN ignored), so a tile's t^ selects a contiguous range
     of slots that holds every sample with t in t^. ``stats``: the largest |x|
     and the largest |y| (each NaN if one is NaN), the smallest and largest u
     and v (NaN ignored; 0 included).
 
-    Tile by tile: the pixel-major copy reads each pixel's samples in order, and the slot-major one
-    transposes that block while it is still in cache (twice as fast as scattering both from the source).
+    Each pixel's samples are read in order and written a tile's area apart;
+    the tile's block (5 x 4 bytes a sample) stays in cache while it fills.
     """
-    n = x.shape[0]
     for s in range(spp):
         slot_lo[s] = np.inf
         slot_hi[s] = -np.inf
-    has_tup = tup.shape[0] == n
+    has_tup = tup.shape[0] == x.shape[0]
     zero = np.float32(0.0)
     mx = zero
     my = zero
@@ -648,16 +640,15 @@ def _tile_major(width, height, row0, spp, tile_size, ty0, ty1, x, y, u, v, t, tu
             w = min(tile_size, width - x0)
             base = (y0 * width + x0 * h) * spp
             area = w * h
-            # pixel-major: each pixel's samples in a contiguous run, read and written in order
             for r in range(h):
                 fy = np.float32(y0 + r + row0)
                 for cl in range(w):
                     fx = np.float32(x0 + cl)
                     src = ((y0 + r) * width + x0 + cl) * spp
-                    kp = base + (r * w + cl) * spp
+                    kp = base + r * w + cl
                     for s in range(spp):
                         j = src + s
-                        k = kp + s
+                        k = kp + s * area
                         xs = x[j]
                         ys = y[j]
                         us = u[j]
@@ -682,23 +673,7 @@ def _tile_major(width, height, row0, spp, tile_size, ty0, ty1, x, y, u, v, t, tu
                         v_hi = vs if vs > v_hi else v_hi
                     if has_tup:
                         for s in range(spp):
-                            ttup[kp + s] = tup[src + s]
-            # slot-major: the tile's pixel-major block transposed (it is still in cache)
-            for s in range(spp):
-                q0 = n + base + s * area
-                for p in range(area):
-                    k = base + p * spp + s
-                    q = q0 + p
-                    ax[q] = ax[k]
-                    ay[q] = ay[k]
-                    tu[q] = tu[k]
-                    tv[q] = tv[k]
-                    tt[q] = tt[k]
-            if has_tup:
-                for s in range(spp):
-                    q0 = n + base + s * area
-                    for p in range(area):
-                        ttup[q0 + p] = ttup[base + p * spp + s]
+                            ttup[kp + s * area] = tup[src + s]
     stats[0] = np.nan if nan_x else mx
     stats[1] = np.nan if nan_y else my
     stats[2] = u_lo
@@ -715,14 +690,12 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
                        out_tri, out_pix, out_sidx, out_z, out_b0, out_b1, out_b2, out_noread, ops, events):
     """Interval lookup on the tile's samples and exact inside tests (Munkberg11 §5; Gribel10 eq. 3, 10-13).
 
-    The samples (x, y, u, v, t, tuple index) come in two tile-major orders
-    (``_tile_major``), one after the other in each array: pixel-major, then
-    slot-major within each tile. Per (triangle, tile) record:
+    The samples (x, y, u, v, t, tuple index) come tile by tile, slot-major
+    within each tile (``_tile_major``). Per (triangle, tile) record:
 
     * the tile's t^ selects the slots that can hold a t in t^ (from the
-      slots' t ranges over the frame, ``slot_lo``, ``slot_hi``): all of them
-      (then the pixel-major order is used), or a range that is a contiguous
-      run in the slot-major order;
+      slots' t ranges over the frame, ``slot_lo``, ``slot_hi``): a range of
+      them, a contiguous run of the tile's samples;
     * the interval test (t in t^, u in u^, v in v^ and, with two-stage
       culling or Interleave UVT, between the time lines and in the tuple
       mask) and pass 1: the float32 edge functions, keeping as candidates
@@ -735,7 +708,8 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
     * pass 2, the full decision (``_decide_lanes``: ``_decide``'s float64
       re-test near edges, top-left ties, depth), on the packed candidates of
       consecutive records of one triangle at once (``_flush``), and the
-      covered samples out in each record's pixel-major order.
+      covered samples out in each record's pixel-major order (a counting
+      sort by pixel).
 
     The passes are branch-free loops that numba vectorizes. A static,
     pinhole triangle's edge functions are set up once (a 2D test per sample
@@ -758,7 +732,6 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
     outputs and calls again from there. Stopping between records changes no
     output (pass 2 may run on any run of whole records).
     """
-    n_frame = width * height * spp  # the slot-major order's start
     u_min, u_max, v_min, v_max = uv_range[0], uv_range[1], uv_range[2], uv_range[3]
     none = tri_ids.shape[0] * 0  # 0, not a literal: the callees compile once
     n = none + covered
@@ -805,7 +778,6 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
     pb1 = np.empty(bcap + 8, np.float32)
     pb2 = np.empty(bcap + 8, np.float32)
     rb_end = np.empty(bcap, np.int64)  # per record of the batch: end of its candidates,
-    rb_slotted = np.empty(bcap, np.bool_)  # slot-major or not,
     rb_pix0 = np.empty(bcap, np.int64)  # first pixel, pixels in the tile,
     rb_area = np.empty(bcap, np.int64)
     rb_za = np.empty(bcap, np.float32)  # depth range, noread flag
@@ -815,15 +787,14 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
     nq = none  # candidates in the batch
     b_tri = none - 1
     b_static = none > 0  # False
-    # per position in a w x h tile, pixel-major (p) and slot-major (s): the
-    # pixel's offset r * width + c in the frame, the sample index, the pixel
-    # r * w + c in the tile
-    off_p = np.empty(tile_len, np.int32)
-    sid_p = np.empty(tile_len, np.int32)
+    # per position in a w x h tile's slot-major run: the pixel's offset
+    # r * width + c in the frame, the sample index, the pixel r * w + c in
+    # the tile
     off_s = np.empty(tile_len, np.int32)
     sid_s = np.empty(tile_len, np.int32)
     pix_s = np.empty(tile_len, np.int32)
     cnt = np.empty(tile_size * tile_size, np.int64)  # covered samples per pixel of the tile
+    order = np.empty(tile_len, np.int32)  # a record's covered candidates in pixel-major order
     cur_w = -1
     cur_h = -1
     tc = np.zeros(46, np.float32)  # the current triangle's constants (see _keep; Z at 40..45)
@@ -851,8 +822,8 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
         room = n + nq + tile_len <= out_cap
         if nb > 0 and (i == n_rec or tri_ids[i] != b_tri or nq + tile_len > bcap or not room):
             n = _flush(n, nb, nq, b_tri, b_static, b_c, b_z3, backface_culling, b_eps, pt, pu, pv, px, py, pok, pz,
-                       pb0, pb1, pb2, poff, psid, ppix, rb_end, rb_slotted, rb_pix0, rb_area, rb_za, rb_zb, rb_nr,
-                       cnt, out_tri, out_pix, out_sidx, out_z, out_b0, out_b1, out_b2, out_noread)
+                       pb0, pb1, pb2, poff, psid, ppix, rb_end, rb_pix0, rb_area, rb_za, rb_zb, rb_nr,
+                       cnt, order, out_tri, out_pix, out_sidx, out_z, out_b0, out_b1, out_b2, out_noread)
             nb = 0
             nq = 0
         if i == n_rec:
@@ -933,9 +904,6 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
             for r_ in range(h_t):
                 for c_ in range(w_t):
                     for s_ in range(spp):
-                        q_ = (r_ * w_t + c_) * spp + s_
-                        off_p[q_] = r_ * width + c_
-                        sid_p[q_] = s_
                         q_ = s_ * area + r_ * w_t + c_
                         off_s[q_] = r_ * width + c_
                         sid_s[q_] = s_
@@ -950,11 +918,8 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
             s1 += slot_lo[s_] <= tb
         if s1 <= s0:
             continue
-        k0 = (tile_y[i] * tile_size * width + px0 * h_t) * spp
-        slotted = s1 - s0 < spp
-        qa = s0 * area if slotted else 0
-        if slotted:
-            k0 += n_frame + qa
+        qa = s0 * area  # the run's start in the tile
+        k0 = (tile_y[i] * tile_size * width + px0 * h_t) * spp + qa
         nlen = (s1 - s0) * area
         n_words = (nlen + 7) // 8
         # the share of the samples u^ and v^ hold, if u and v are spread evenly
@@ -996,8 +961,8 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
                 px[uq] = sx[k]
                 py[uq] = sy[k]
                 q_ = qa + j
-                poff[uq] = off_s[q_] if slotted else off_p[q_]
-                psid[uq] = sid_s[q_] if slotted else sid_p[q_]
+                poff[uq] = off_s[q_]
+                psid[uq] = sid_s[q_]
                 ppix[uq] = pix_s[q_]
         else:
             # the interval test first, then pass 1 on the samples in the intervals, packed
@@ -1036,8 +1001,8 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
                 px[uq] = cx[s_]
                 py[uq] = cy[s_]
                 q_ = cq[s_]
-                poff[uq] = off_s[q_] if slotted else off_p[q_]
-                psid[uq] = sid_s[q_] if slotted else sid_p[q_]
+                poff[uq] = off_s[q_]
+                psid[uq] = sid_s[q_]
                 ppix[uq] = pix_s[q_]
         # ---- the record joins the batch -------------------------------------
         finite = (np.isfinite(ta) and np.isfinite(tb) and np.isfinite(ua) and np.isfinite(ub) and np.isfinite(va)
@@ -1052,7 +1017,6 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
             b_static = b_static and finite
         nq = base + m
         rb_end[nb] = nq
-        rb_slotted[nb] = slotted
         rb_pix0[nb] = py0 * width + px0 + first
         rb_area[nb] = area
         rb_za[nb] = np.float32(z_lo[i])
@@ -1084,7 +1048,7 @@ SAMPLE_FILTERS = ("lines", "mask")
 
 
 class TileMajorLayouts:
-    """The samples of sample sets in the sample tester's two tile-major orders (``_tile_major``).
+    """The samples of sample sets in the sample tester's tile-major order (``_tile_major``).
 
     ``prepare`` builds a set's layout on the thread that calls it: a screen
     region's as its samples are made, on the thread that makes the next
@@ -1138,7 +1102,7 @@ class TileMajorLayouts:
 
     def _build(self, s, threads: int = 1) -> tuple:
         """(x, y, u, v, t, tuple index, slot_lo, slot_hi, uv_range, xy_max, buffers): the kernel's
-        arguments, pixel-major then slot-major in each array, views of ``buffers``; on two threads, each
+        arguments, tile by tile and slot-major in each tile, views of ``buffers``; on two threads, each
         laying out half the tile rows, with ``threads`` 2."""
         n = len(s.t)
         if s.width * s.height * s.spp != n:
@@ -1146,10 +1110,10 @@ class TileMajorLayouts:
         if s.row0 % self.tile_size:
             raise ValueError(f"a screen region starts at row {s.row0}, not on a tile row")
         has_tup = s.tup is not None
-        buffers = self._buffers(2 * n, has_tup)
+        buffers = self._buffers(n, has_tup)
         f32, i8 = buffers
-        tup = i8[:2 * n] if has_tup else np.zeros(1, np.int8)  # (the kernel reads index 0)
-        arrays = tuple(a[:2 * n] for a in f32) + (tup,)
+        tup = i8[:n] if has_tup else np.zeros(1, np.int8)  # (the kernel reads index 0)
+        arrays = tuple(a[:n] for a in f32) + (tup,)
         rows = (s.height + self.tile_size - 1) // self.tile_size
         parts = [(0, rows)] if threads < 2 or rows < 2 else [(0, rows // 2), (rows // 2, rows)]
         out = [(np.empty(s.spp, np.float32), np.empty(s.spp, np.float32), np.empty(6, np.float64)) for _ in parts]
@@ -1224,7 +1188,7 @@ class SampleTester:
             self._layout = None
 
     def layout(self) -> tuple:
-        """The samples in the kernel's two tile-major orders (``TileMajorLayouts``), on first use:
+        """The samples in the kernel's tile-major order (``TileMajorLayouts``), on first use:
         (x, y, u, v, t, tuple index, slot_lo, slot_hi, uv_range, xy_max)."""
         if self._layout is None:
             self._layout = self.layouts.take(self.samples)
