@@ -21,7 +21,7 @@ of the build and of the run (the mark is reset after the build, as in the
 scaling section), the RSS growth measured across sample generation and the
 ROP's buffer allocation, and an estimate of how the run's memory divides,
 from array sizes: the sample arrays (x, y, u, v, t float32 per sample) and
-the sample tester's tile-major copies, the multisample buffers (depth
+the sample tester's tile-major copy, the multisample buffers (depth
 float32 + RGBA float32 per sample), all of one screen region at a time
 (``simulation.region_samples``), the resolved image, the per-triangle tables
 (the draw and triangle setup's table) and the resolve's temporaries.
@@ -85,7 +85,7 @@ def estimate_bytes(draw, width: int, height: int, spp: int, tile_size: int, zcul
     tiles = -(-width // tile_size) * -(-height // tile_size)
     return {
         "sample_arrays": 5 * 4 * n * sets_kept,  # x, y, u, v, t float32 of the cached regions
-        "tester_layout": 2 * 5 * 4 * n,  # the sample tester's two tile-major copies of its region
+        "tester_layout": 5 * 4 * n,  # the sample tester's tile-major copy of its region
         "multisample_buffers": (4 + 16) * n,  # depth float32 + RGBA float32 of the ROP's region
         "image": width * height * 4 * 4,  # resolved float32 RGBA
         "draw": draw_bytes,
@@ -317,7 +317,7 @@ def report(f: dict, table, add) -> list[str]:
         rows = [
             ("sample arrays (5 x float32 per sample, regions cached)", f"{e['sample_arrays']:.0f} MB",
              f"largest RSS growth in one make_samples: {p.get('samples_rss_growth_mb', float('nan')):.0f} MB"),
-            ("sample tester's tile-major copies of its region", f"{e['tester_layout']:.0f} MB", ""),
+            ("sample tester's tile-major copy of its region", f"{e['tester_layout']:.0f} MB", ""),
             ("multisample buffers of a region (depth + RGBA float32)", f"{e['multisample_buffers']:.0f} MB",
              f"RSS grew {p.get('rop_rss_growth_mb', float('nan')):.0f} MB creating the ROP (with the image)"),
             ("resolved image (RGBA float32)", f"{e['image']:.0f} MB", ""),

@@ -29,7 +29,7 @@ benchmark makes that comparison like for like:
    brackets).
 
 Not timed: the tester's sample layout (``SampleTester.layout``: the frame's
-samples in its two tile-major orders), built once per pass on its first
+samples in its tile-major, slot-major order), built once per pass on its first
 batch; its time per scene is reported next to the table. Note also that the
 micro-kernel reads its samples from the block just gathered (warm in cache),
 the tester from the frame's sample arrays.

@@ -210,9 +210,15 @@ class _RunAhead:
     is the order the stage steps them. Steps start in that order, at most
     ``depth`` not yet taken up by the stage, each only when ``stage.ahead``
     allows it and it is worth handing over (``worth``); the first batch that
-    does not start stops the run-ahead until the stage has stepped that batch
-    itself. So every step runs after all the steps before it and before all
-    those after it, one at a time, as without run-ahead.
+    may not start holds the run-ahead until it may (``worth`` is asked again
+    as the stage's timing changes) or the stage has stepped it itself. So
+    every step runs after all the steps before it and before all those after
+    it, one at a time, as without run-ahead.
+
+    The timing is of wall time wherever a step ran, so a step on the
+    run-ahead thread counts the waits for the interpreter lock it met; one
+    slow step (a band's buffers cleared, say) weighs in for the rest of the
+    pass. Either only moves a step between threads.
     """
 
     def __init__(self, stage: Stage, fifo: Fifo, pool: ThreadPoolExecutor, depth: int, min_seconds: float = 0.0):
@@ -241,8 +247,8 @@ class _RunAhead:
         """The stage's step of ``payload``, its time and records added to the stage's."""
         t0 = time.perf_counter()
         result = self.stage.step(payload)
-        self.seconds += time.perf_counter() - t0
         self.records += record_count(payload)
+        self.seconds += time.perf_counter() - t0
         return result
 
     def admit(self) -> None:

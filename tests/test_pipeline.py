@@ -325,13 +325,14 @@ def test_random_stalls_outputs_complete_and_in_order(depth):
         assert res.frame_cycles >= max(sum(cost_a.values()), sum(cost_c.values()))
 
 
-@pytest.mark.parametrize("depth", [1, 2, 5])
-def test_run_ahead_steps_in_order_one_at_a_time_and_times_the_same(depth):
+@pytest.mark.parametrize("depth, min_seconds", [(1, 0.0), (2, 0.0), (5, 0.0), (2, 1e-4)])
+def test_run_ahead_steps_in_order_one_at_a_time_and_times_the_same(depth, min_seconds):
     """A stage with ``ahead`` steps its batches on the run-ahead thread, ahead of the simulation: each
     step still starts after the one before it has ended (in FIFO order, never two at once), a batch
     ``ahead`` refuses is stepped by the stage itself, and the timing, counts and order of everything are
     those of the same stages without run-ahead. Its ``settle`` runs on the main thread, after the step,
-    at the same point among the other stages' steps as without run-ahead."""
+    at the same point among the other stages' steps as without run-ahead. With ``min_seconds``, steps
+    too short to hand over (random pauses of 0 to 0.2 ms against 0.1 ms) run on the main thread too."""
     rng = np.random.default_rng(100 + depth)
     on_worker = 0
     for trial in range(12):
@@ -366,7 +367,8 @@ def test_run_ahead_steps_in_order_one_at_a_time_and_times_the_same(depth):
 
         plain_log, log = [], []
         plain = simulate(stages(plain_log, None), items, 2)
-        res = simulate(stages(log, lambda it: it not in refuse), items, 2, run_ahead=depth)
+        res = simulate(stages(log, lambda it: it not in refuse), items, 2, run_ahead=depth,
+                       run_ahead_min_seconds=min_seconds)
         b_log = [e for e in log if e[0] in ("start", "end")]
         assert [(e[0], e[1]) for e in b_log] == [(k, it) for it in items for k in ("start", "end")]
         settles = [e for e in log if e[0] == "settle"]
@@ -380,42 +382,52 @@ def test_run_ahead_steps_in_order_one_at_a_time_and_times_the_same(depth):
         pd.testing.assert_frame_equal(res.units, plain.units)
         pd.testing.assert_frame_equal(res.queues, plain.queues)
         assert res.traces == plain.traces
-    assert on_worker > 50  # the run-ahead thread did step batches
+    assert on_worker > (50 if min_seconds == 0 else 10)  # the run-ahead thread did step batches
 
 
-def test_run_ahead_hands_over_only_steps_expected_to_take_long_enough():
+def test_run_ahead_hands_over_only_steps_expected_to_take_long_enough(monkeypatch):
     """With ``run_ahead_min_seconds``, a stage's first step runs on the main thread (nothing measured
-    yet); after that a batch goes to the run-ahead thread exactly when the stage's seconds per record so
-    far times its records reach the minimum. The timing is that of the plain simulation."""
-    per_record = 2e-3  # the step sleeps this long per record of its batch
-    sizes = [3, 1, 4, 1, 5, 9, 2, 6, 5, 3, 5, 1, 1, 8]
-    min_seconds = 7e-3  # between the batches of 3 and 4 records
-    where, expected, done = [], [], [0.0, 0]
+    yet); after that a batch goes to the run-ahead thread exactly when the seconds per record of the
+    stage's steps so far (wherever they ran) times its records reach the minimum, the boundary included.
+    The steps advance a fake clock by their cost, so the decisions are exact; the expected ones are
+    worked out here in exact fractions. The timing is that of the plain simulation."""
+    from fractions import Fraction
+    from types import SimpleNamespace
 
-    def b(batch):
+    from pipeline_sim import pipeline as pipeline_module
+
+    clock = [0.0]
+    monkeypatch.setattr(pipeline_module, "time", SimpleNamespace(perf_counter=lambda: clock[0]))
+    sizes = [2, 6, 3, 4, 1, 8, 2, 5, 3, 6, 1, 7, 4, 2]
+    per_record = [1.0, 2.0, 2.0, 0.5, 4.0, 0.25, 1.0, 3.0, 1.0, 0.5, 2.0, 1.0, 1.5, 1.0]  # dyadic: exact sums
+    min_seconds = 6.0
+    where = []
+
+    def b(it):
         where.append(threading.current_thread() is threading.main_thread())
-        time.sleep(per_record * len(batch))
-        return [batch], float(len(batch))
+        clock[0] += per_record[it] * sizes[it]
+        return [it], float(sizes[it])
 
     def stages(ahead):
-        return [Stage("a", lambda it: ([list(range(sizes[it]))], 1.0), 0),
-                Stage("b", b, 0, ahead=ahead), Stage("c", lambda batch: ([], 1.0), 0)]
+        return [Stage("a", lambda it: ([it], 1.0), 0),
+                Stage("b", lambda it: b(it[0]), 0, ahead=ahead), Stage("c", lambda it: ([], 1.0), 0)]
 
-    plain = simulate(stages(None), list(range(len(sizes))), 2)
+    items = [[k] * size for k, size in enumerate(sizes)]  # batch k: ``sizes[k]`` records
+    plain = simulate(stages(None), items, 2)
     where.clear()
-    res = simulate(stages(lambda batch: True), list(range(len(sizes))), 2, run_ahead=1,
-                   run_ahead_min_seconds=min_seconds)
-    assert where[0]  # the first step measures the stage
-    # the steps that ran on the worker were those predicted (from the measured rate) to take long enough;
-    # a sleep takes at least its time, so a batch of 4 or more records always qualified once measured
-    assert not all(where[1:])
-    for k, size in enumerate(sizes[1:], 1):
-        if size >= 4:
-            assert not where[k], (k, size)
-        elif size <= 2:
-            assert where[k], (k, size)
+    res = simulate(stages(lambda batch: True), items, 2, run_ahead=1, run_ahead_min_seconds=min_seconds)
+    expected, seconds, records = [], Fraction(0), 0
+    for k, size in enumerate(sizes):
+        expected.append(not (records > 0 and seconds * size >= Fraction(min_seconds) * records))  # on main
+        seconds += Fraction(per_record[k]) * size
+        records += size
+    assert expected.count(False) >= 4 and expected.count(True) >= 4
+    assert not expected[1]  # on the boundary: 1 s a record so far, 6 records, 6 s
+    assert where == expected
     assert res.frame_cycles == plain.frame_cycles
     pd.testing.assert_frame_equal(res.units, plain.units)
+    pd.testing.assert_frame_equal(res.queues, plain.queues)
+    assert res.traces == plain.traces
 
 
 def test_run_in_order_settles_each_step_after_it():
@@ -662,7 +674,8 @@ def test_run_ahead_changes_nothing_but_the_thread(draw, regions, monkeypatch):
 
     def result(run_ahead):
         seen.clear()
-        # (this draw's batches are far too small to be worth handing over: every one is)
+        # (this draw's batches are far too small to be worth handing over: run_ahead_min_us=0 hands over
+        # every one)
         settings = [f"simulation.run_ahead={run_ahead}", f"simulation.region_samples={regions}",
                     "simulation.tiles_per_batch=16", "simulation.samples_per_batch=256",
                     "simulation.run_ahead_min_us=0"]
@@ -689,6 +702,21 @@ def test_run_ahead_changes_nothing_but_the_thread(draw, regions, monkeypatch):
         pd.testing.assert_frame_equal(res.timing.queues, one_thread.timing.queues)
         assert res.timing.traces == one_thread.timing.traces
         assert res.region_samples_made == one_thread.region_samples_made
+
+
+def test_a_pass_hands_its_run_ahead_minimum_to_the_simulation(draw, monkeypatch):
+    """``simulation.run_ahead_min_us`` reaches ``simulate`` in seconds (default 1,000 us)."""
+    seen = []
+    real = render_module.simulate
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs.get("run_ahead_min_seconds"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(render_module, "simulate", spy)
+    for settings, want in (([], 1e-3), (["simulation.run_ahead_min_us=250"], 250e-6)):
+        run_pass(RenderPass(draw=draw, **pass_settings(settings), spp=SPP))
+        assert seen[-1] == pytest.approx(want)
 
 
 def test_conservative_shading_ahead_changes_nothing_but_the_thread(draw, monkeypatch):

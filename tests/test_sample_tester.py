@@ -491,14 +491,16 @@ def test_fast_paths_match_plain_loop_on_samples_on_shared_edges(motion, lens):
 
 
 def _numpy_layout(s, ts):
-    """The tester's layout of sample set ``s`` built with numpy: (x, y, u, v, t) each tile by tile,
-    slot-major in each tile (x, y absolute), each slot's t range, the u and v range (0 included) and
-    ``xy_max``."""
+    """The tester's layout of sample set ``s`` built with numpy: (x, y, u, v, t and, if the set has them,
+    the tuple indices) each tile by tile, slot-major in each tile (x, y absolute), each slot's t range,
+    the u and v range (0 included) and ``xy_max``."""
     width = s.width
     t = s.t.reshape(s.height, width, s.spp)
     px = np.arange(width, dtype=np.float32)[None, :, None]
     py = np.arange(s.row0, s.row0 + s.height, dtype=np.float32)[:, None, None]
     fields = (s.x.reshape(t.shape) + px, s.y.reshape(t.shape) + py, s.u.reshape(t.shape), s.v.reshape(t.shape), t)
+    if s.tup is not None:
+        fields += (s.tup.reshape(t.shape),)
     slot_major = [[] for _ in fields]
     for y0 in range(0, s.height, ts):
         for x0 in range(0, width, ts):
@@ -506,20 +508,23 @@ def _numpy_layout(s, ts):
                 block = f[y0:y0 + ts, x0:x0 + ts]  # (h, w, spp)
                 slot_major[k].append(block.transpose(2, 0, 1).ravel())
     arrays = [np.concatenate(a) for a in slot_major]
+    tup = arrays.pop() if s.tup is not None else None
     uv = [min(s.u.min(), 0), max(s.u.max(), 0), min(s.v.min(), 0), max(s.v.max(), 0)]
-    return (*arrays, t.min(axis=(0, 1)), t.max(axis=(0, 1)), uv,
+    return (*arrays, tup, t.min(axis=(0, 1)), t.max(axis=(0, 1)), uv,
             float(max(np.abs(s.x).max(), np.abs(s.y).max())) * (1 + 1e-6))
 
 
 def _assert_layout(got, s, ts):
-    ax, ay, au, av, at, _, lo, hi, uv, xy_max = got
+    ax, ay, au, av, at, tup, lo, hi, uv, xy_max = got
     want = _numpy_layout(s, ts)
     for a, b in zip((ax, ay, au, av, at), want[:5]):
         assert a.tobytes() == b.tobytes()
-    np.testing.assert_array_equal(lo, want[5])
-    np.testing.assert_array_equal(hi, want[6])
-    np.testing.assert_array_equal(uv, want[7])
-    assert xy_max == want[8]
+    if want[5] is not None:
+        assert tup.tobytes() == want[5].tobytes()
+    np.testing.assert_array_equal(lo, want[6])
+    np.testing.assert_array_equal(hi, want[7])
+    np.testing.assert_array_equal(uv, want[8])
+    assert xy_max == want[9]
 
 
 def test_layout_orders_and_ranges_match_numpy():
@@ -537,6 +542,12 @@ def test_layout_orders_and_ranges_match_numpy():
         tester.use_samples(s)
         assert len(tester.layout()[4]) == len(s.t)
         _assert_layout(tester.layout(), s, ts)
+    # Interleave UVT's tuple indices move with their samples
+    s = make_samples(width, 18, spp, 2, lens=True, motion=True, rows=(4, 15), pattern="interleave",
+                     interleave_tuples=32)
+    assert s.tup is not None and len(np.unique(s.tup)) > 8
+    tester.use_samples(s)
+    _assert_layout(tester.layout(), s, ts)
 
 
 def test_layout_keeps_nan_rules():
