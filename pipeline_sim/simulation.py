@@ -34,7 +34,7 @@ class SimOptions:
         2, SPEED, "batches the tile test, the sample tester, shading and the ROP may each work ahead of the simulation, "
         "each on a thread of its own, while the other units run (0: off, every unit steps on one thread)")
     run_ahead_min_us: count(0) = setting(
-        1000, SPEED, "a batch goes to a unit's run-ahead thread only when its step is expected to take at least "
+        600, SPEED, "a batch goes to a unit's run-ahead thread only when its step is expected to take at least "
         "this many microseconds (the unit's time per record in its steps so far times the batch's records; its "
         "first step runs on the simulation's thread): handing a batch over has costs of its own (threads woken, "
         "the interpreter lock passed around). 0: every batch the unit may run ahead")

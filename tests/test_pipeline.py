@@ -705,7 +705,7 @@ def test_run_ahead_changes_nothing_but_the_thread(draw, regions, monkeypatch):
 
 
 def test_a_pass_hands_its_run_ahead_minimum_to_the_simulation(draw, monkeypatch):
-    """``simulation.run_ahead_min_us`` reaches ``simulate`` in seconds (default 1,000 us)."""
+    """``simulation.run_ahead_min_us`` reaches ``simulate`` in seconds (default 600 us)."""
     seen = []
     real = render_module.simulate
 
@@ -714,7 +714,7 @@ def test_a_pass_hands_its_run_ahead_minimum_to_the_simulation(draw, monkeypatch)
         return real(*args, **kwargs)
 
     monkeypatch.setattr(render_module, "simulate", spy)
-    for settings, want in (([], 1e-3), (["simulation.run_ahead_min_us=250"], 250e-6)):
+    for settings, want in (([], 6e-4), (["simulation.run_ahead_min_us=250"], 250e-6)):
         run_pass(RenderPass(draw=draw, **pass_settings(settings), spp=SPP))
         assert seen[-1] == pytest.approx(want)
 
