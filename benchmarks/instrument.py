@@ -79,7 +79,7 @@ class Script:
 
 @contextlib.contextmanager
 def recording(script: Script):
-    def simulate(stages, source_batches, queue_depth, capacities=None, run_ahead=0, run_ahead_min_seconds=0.0):
+    def simulate(stages, source_batches, queue_depth, capacities=None, **_run_ahead):  # (one thread)
         script.stages = [(s.name, s.latency) for s in stages]
         script.n_source = len(source_batches)
         script.queue_depth = queue_depth
@@ -113,7 +113,7 @@ def _empty_timing() -> TimingResult:
 def direct(order: list[int] | None):
     """Replace SimPy by a plain loop (replaying ``order``, or depth-first if None)."""
 
-    def simulate(stages, source_batches, queue_depth, capacities=None, run_ahead=0, run_ahead_min_seconds=0.0):
+    def simulate(stages, source_batches, queue_depth, capacities=None, **_run_ahead):  # (one thread)
         n = len(stages)
 
         def step(i, batch):  # with its settle (the ROP's z-cull refresh published), as SimPy does
@@ -238,7 +238,7 @@ def unit_timers(timers: Timers):
             return _make(*a, **k)
         stack.enter_context(patched(render, "make_samples", make_samples))
 
-        def simulate(stages, source_batches, queue_depth, capacities=None, run_ahead=0, run_ahead_min_seconds=0.0):
+        def simulate(stages, source_batches, queue_depth, capacities=None, **_run_ahead):  # (one thread)
             for s in stages:
                 s.step = _timed(s.step, timers, "step:" + s.name)
             # every step on the main thread (the timers time one thread)
