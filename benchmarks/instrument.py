@@ -16,6 +16,10 @@ swap them for the duration of one call and restore them afterwards.
   before the next).
 * ``simpy_only(script)``: the SimPy layer alone: ``pipeline.simulate`` with
   steps that do no work and return the recorded output counts and cycles.
+* ``simulation_waits()``: per unit with run-ahead threads, the steps the
+  simulation's thread took from the unit's thread and how long it waited for
+  them, and the steps it ran itself: where a run-ahead pass's critical path
+  goes through that thread.
 * ``unit_timers()``: wall and main-thread CPU time of every unit's ``run``,
   the sample tester's numba kernel, the z-cull refresh, the waits for a
   screen region's samples (made on a background thread while the region
@@ -213,6 +217,37 @@ def _timed(fn, timers: Timers, key: str):
                 timers.stack[-1][0] += wall
                 timers.stack[-1][1] += cpu
     return wrapper
+
+
+def _no_waits() -> dict:
+    return {"taken": 0, "waited_s": 0.0, "own": 0, "own_s": 0.0}
+
+
+@contextlib.contextmanager
+def simulation_waits(log: dict):
+    """Per unit whose steps may run ahead (``simulation.run_ahead``), in ``log[unit]``: ``taken``, the steps
+    the simulation took from the unit's run-ahead thread, and ``waited_s``, the seconds its thread spent
+    taking them (waiting for the ones not done yet); ``own``, the steps it ran on its own thread (batches not
+    worth handing over, a unit's first step, the first batch of a screen region), and ``own_s``, their
+    seconds."""
+    real = pipeline._RunAhead.step
+
+    def step(self, payload):
+        taken = self.stepped in self.started
+        t0 = time.perf_counter()
+        try:
+            return real(self, payload)
+        finally:
+            d = log.setdefault(self.stage.name, _no_waits())
+            if taken:
+                d["taken"] += 1
+                d["waited_s"] += time.perf_counter() - t0
+            else:
+                d["own"] += 1
+                d["own_s"] += time.perf_counter() - t0
+
+    with patched(pipeline._RunAhead, "step", step):
+        yield
 
 
 @contextlib.contextmanager
