@@ -219,8 +219,8 @@ def _timed(fn, timers: Timers, key: str):
     return wrapper
 
 
-def _no_waits() -> dict:
-    return {"taken": 0, "waited_s": 0.0, "own": 0, "own_s": 0.0}
+#: what ``simulation_waits`` logs per unit
+WAIT_FIELDS = ("taken", "waited_s", "own", "own_s")
 
 
 @contextlib.contextmanager
@@ -238,7 +238,7 @@ def simulation_waits(log: dict):
         try:
             return real(self, payload)
         finally:
-            d = log.setdefault(self.stage.name, _no_waits())
+            d = log.setdefault(self.stage.name, dict.fromkeys(WAIT_FIELDS, 0))
             if taken:
                 d["taken"] += 1
                 d["waited_s"] += time.perf_counter() - t0

@@ -453,8 +453,8 @@ def simulation_thread(runs: list) -> dict:
     from benchmarks import instrument as ins
 
     names = list(dict.fromkeys(name for _, log_ in runs for name in log_))
-    units = {name: {k: float(np.median([log_.get(name, ins._no_waits())[k] for _, log_ in runs]))
-                    for k in ins._no_waits()} for name in names}
+    units = {name: {k: float(np.median([log_.get(name, {}).get(k, 0) for _, log_ in runs])) for k in ins.WAIT_FIELDS}
+             for name in names}
     return {"cpu_s": float(np.median([c for c, _ in runs])) if runs else 0.0, "units": units}
 
 
