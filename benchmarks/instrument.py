@@ -229,7 +229,8 @@ def simulation_waits(log: dict):
     the simulation took from the unit's run-ahead thread, and ``waited_s``, the seconds its thread spent
     taking them (waiting for the ones not done yet); ``own``, the steps it ran on its own thread (batches not
     worth handing over, a unit's first step, the first batch of a screen region), and ``own_s``, their
-    seconds."""
+    seconds. Each time also holds the starting of the unit's next batches on its thread that follows a step
+    (``_RunAhead.step``). Every ``simulate`` during the context logs here, on whatever thread it runs."""
     real = pipeline._RunAhead.step
 
     def step(self, payload):
@@ -238,7 +239,9 @@ def simulation_waits(log: dict):
         try:
             return real(self, payload)
         finally:
-            d = log.setdefault(self.stage.name, dict.fromkeys(WAIT_FIELDS, 0))
+            d = log.get(self.stage.name)
+            if d is None:
+                d = log[self.stage.name] = dict.fromkeys(WAIT_FIELDS, 0)
             if taken:
                 d["taken"] += 1
                 d["waited_s"] += time.perf_counter() - t0

@@ -137,9 +137,10 @@ unless said otherwise:
    generation: in wall time the main thread's waits for a region's samples,
    which the next region's are made during, in CPU time also the generating
    threads; the cost model in the steps, the SimPy layer, the rest), and the tester's
-   nanoseconds per tested sample including its outputs; and, as shipped, the
-   simulation's thread: its CPU, its waits for each unit's run-ahead steps
-   and the steps it ran itself. Writes ``per_sample.csv``.
+   nanoseconds per tested sample including its outputs (``per_sample.csv``);
+   and, in as many more runs as shipped, the main thread: its CPU, the
+   simulation's waits for each unit's run-ahead steps and the steps it ran
+   itself (in ``results.json`` and ``results.csv``).
 
 ``--only SECTION[,SECTION]`` runs some sections only (default, tester,
 scaling, compile, specialization, batch, frame, patterns, ab, convergence,
@@ -446,16 +447,17 @@ def unit_breakdown(runs: list, simpy_s: float, simpy_cpu_s: float) -> dict:
     return {"instrumented_total_s": total, "instrumented_total_cpu_s": total_cpu, "units": units}
 
 
-def simulation_thread(runs: list) -> dict:
-    """Medians over run-ahead runs of the simulation's thread's CPU (``cpu_s``) and, per unit with run-ahead
-    (``units``), the steps it took from the unit's thread, its waits for them, and the steps it ran itself
-    (``instrument.simulation_waits``)."""
+def simulation_thread(runs: list[tuple[float, dict]]) -> dict:
+    """Medians over run-ahead runs, each (the main thread's CPU seconds over the pass, its
+    ``instrument.simulation_waits`` log): ``cpu_s`` (None without runs) and, per unit in any run's log
+    (``units``), each field of ``instrument.WAIT_FIELDS``, field by field (a unit missing from a run's log
+    had no run-ahead steps there: zeros)."""
     from benchmarks import instrument as ins
 
-    names = list(dict.fromkeys(name for _, log_ in runs for name in log_))
-    units = {name: {k: float(np.median([log_.get(name, {}).get(k, 0) for _, log_ in runs])) for k in ins.WAIT_FIELDS}
+    names = list(dict.fromkeys(name for _, steps in runs for name in steps))
+    units = {name: {k: float(np.median([steps.get(name, {}).get(k, 0) for _, steps in runs])) for k in ins.WAIT_FIELDS}
              for name in names}
-    return {"cpu_s": float(np.median([c for c, _ in runs])) if runs else 0.0, "units": units}
+    return {"cpu_s": float(np.median([c for c, _ in runs])) if runs else None, "units": units}
 
 
 def bench_per_sample(cfg: dict) -> dict:
@@ -486,17 +488,23 @@ def bench_per_sample(cfg: dict) -> dict:
     variants = {"one_thread": 0, "run_ahead": depth}
     log(f"per sample: {cfg['per_sample']['plain']} plain runs each, one thread and run-ahead, alternately")
     plain: dict[str, list] = {key: [] for key in variants}
-    waits = []  # per run-ahead run: the simulation's thread's CPU and its waits (instrument.simulation_waits)
     for _ in range(cfg["per_sample"]["plain"]):
         for key, value in variants.items():
             q = dataclasses.replace(p, simulation=p.simulation.replace(run_ahead=value))
-            log_: dict = {}
-            with ins.simulation_waits(log_) if value else contextlib.nullcontext():
-                c0, m0 = _clocks(), time.thread_time()
-                run_pass(q)
-                plain[key].append(_since(c0))
-            if value:
-                waits.append((time.thread_time() - m0, log_))
+            c0 = _clocks()
+            run_pass(q)
+            plain[key].append(_since(c0))
+    # then as shipped with the simulation's thread timed (instrument.simulation_waits): its CPU over the pass
+    # and, per unit with run-ahead, its waits for the unit's steps and the steps it ran itself
+    waits = []
+    if depth:
+        log(f"per sample: {cfg['instrumented']} run-ahead runs, the simulation's thread timed")
+        for _ in range(cfg["instrumented"]):
+            steps: dict = {}
+            with ins.simulation_waits(steps):
+                m0 = time.thread_time()
+                run_pass(p)
+                waits.append((time.thread_time() - m0, steps))
     out["simulation_thread"] = simulation_thread(waits)
     for key, times in plain.items():
         out[f"{key}_s"] = float(np.median([w for w, _ in times]))
@@ -819,14 +827,15 @@ def report(results: dict) -> tuple[str, list[dict]]:
                    f"({ps['samples_tested']:,} tested)")
         out.append(table([(u["part"], f"{u['ns_per_sample']:.2f}", f"{100 * u['share']:.1f} %") for u in ps["units"]],
                          ("part", "ns / sample", "share")))
-        st_ = ps["simulation_thread"]
-        out.append(f"   the simulation's thread as shipped, medians of the run-ahead runs: {st_['cpu_s']:.2f} s of CPU in "
-                   f"a {ps['run_ahead_s']:.2f} s pass; per unit, the steps it took from the unit's run-ahead thread "
-                   "and its wait for them, and the steps it ran itself (not worth handing over, a unit's first, "
-                   "a screen region's first)")
-        out.append(table([(name, f"{d['taken']:.0f}", f"{d['waited_s']:.3f} s", f"{d['own']:.0f}", f"{d['own_s']:.3f} s")
-                          for name, d in st_["units"].items()],
-                         ("unit", "taken", "waited", "own steps", "their time")))
+        sim_thread = ps["simulation_thread"]
+        if sim_thread["cpu_s"] is not None:
+            out.append(f"   the main thread as shipped, medians of {results['config']['instrumented']} run-ahead runs "
+                       f"with it timed: {sim_thread['cpu_s']:.2f} s of CPU over the pass; per unit, the steps the "
+                       "simulation took from the unit's run-ahead thread and its wait for them, and the steps it ran "
+                       "itself (not worth handing over, a unit's first, a screen region's first)")
+            out.append(table([(name, f"{w['taken']:.0f}", f"{w['waited_s']:.3f} s", f"{w['own']:.0f}",
+                               f"{w['own_s']:.3f} s") for name, w in sim_thread["units"].items()],
+                             ("unit", "taken", "waited", "own steps", "their time")))
         out.append("")
         add("per_sample", "ns_per_sample", ps["ns_per_sample"], "ns", f"default scene, {ps['spp']} spp, wall")
         add("per_sample", "ns_per_sample_cpu", ps["ns_per_sample_cpu"], "ns", "CPU")
@@ -840,11 +849,12 @@ def report(results: dict) -> tuple[str, list[dict]]:
             "the sample tester's run, outputs included")
         for u in ps["units"]:
             add("per_sample", f"ns_per_sample@{u['part']}", u["ns_per_sample"], "ns")
-        add("per_sample", "simulation_thread_cpu_s", st_["cpu_s"], "s", "as shipped, the simulation's thread")
-        for name, d in st_["units"].items():
-            add("per_sample", f"simulation_waited_s@{name}", d["waited_s"], "s",
+        if sim_thread["cpu_s"] is not None:
+            add("per_sample", "main_thread_cpu_s", sim_thread["cpu_s"], "s", "as shipped, the main thread over the pass")
+        for name, w in sim_thread["units"].items():
+            add("per_sample", f"simulation_waited_s@{name}", w["waited_s"], "s",
                 "as shipped: the simulation's thread waiting for the unit's run-ahead steps")
-            add("per_sample", f"simulation_own_steps_s@{name}", d["own_s"], "s",
+            add("per_sample", f"simulation_own_steps_s@{name}", w["own_s"], "s",
                 "as shipped: the unit's steps run on the simulation's thread")
     out.append(f"total benchmark time {results['elapsed_s']:.0f} s"
                + (f" (sections: {', '.join(results['sections'])})" if results["sections"] != list(SECTIONS) else ""))
