@@ -130,7 +130,7 @@ unless said otherwise:
 
 12. ("per_sample" section) Cost per sample: the default scene at 256 spp,
    in nanoseconds per sample end to end, with the tile test, the sample
-   tester and shading on run-ahead threads (as shipped,
+   tester, shading and the ROP on run-ahead threads (as shipped,
    ``simulation.run_ahead = 2``) and on one thread, timed alternately; then instrumented
    as in 2 (on one thread), per part
    (tile test, z-cull, tester, shading, ROP, the z-cull refresh, sample
@@ -138,9 +138,9 @@ unless said otherwise:
    which the next region's are made during, in CPU time also the generating
    threads; the cost model in the steps, the SimPy layer, the rest), and the tester's
    nanoseconds per tested sample including its outputs (``per_sample.csv``);
-   and, in as many more runs as shipped, the main thread: its CPU, the
-   simulation's waits for each unit's run-ahead steps and the steps it ran
-   itself (in ``results.json`` and ``results.csv``).
+   and, in as many runs again (as shipped, with the main thread timed), the
+   main thread's CPU, the simulation's waits for each unit's run-ahead steps
+   and the steps it ran itself (in ``results.json`` and ``results.csv``).
 
 ``--only SECTION[,SECTION]`` runs some sections only (default, tester,
 scaling, compile, specialization, batch, frame, patterns, ab, convergence,
