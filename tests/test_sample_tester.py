@@ -389,44 +389,107 @@ def test_fast_paths_match_plain_loop_on_adversarial_triangles(tri, seed, tile_si
     assert_tester_matches_reference(tester, tiles)
 
 
+def _random_tile(rng):
+    """Float32 constants of a random moving, defocused triangle (layout of ``_keep``), the tile's
+    intervals and bounds on |x| and |y|."""
+    f32 = np.float32
+    scale = 10.0 ** rng.uniform(-2, 3)
+    c = np.zeros(40, np.float32)
+    c[0:9] = rng.uniform(-1, 1, 9) * scale  # X, Y, W at t = 0
+    c[6:9] = rng.uniform(0.05, 2, 3) * scale
+    c[9:18] = rng.uniform(-0.3, 0.3, 9) * scale  # motion
+    c[18:24] = rng.uniform(-0.2, 0.2, 6) * scale  # lens
+    c[24:30] = rng.uniform(-0.05, 0.05, 6) * scale
+    ta, tb = sorted(rng.uniform(0, 1, 2).astype(f32))
+    return c, (ta, tb, f32(-1), f32(1), f32(-1), f32(1)), 64.0, 48.0
+
+
+def _samples_in(rng, intervals, x_max, y_max, n=2000):
+    f32 = np.float32
+    ta, tb = intervals[:2]
+    return (rng.uniform(ta, tb, n).astype(f32), rng.uniform(-1, 1, n).astype(f32),
+            rng.uniform(-1, 1, n).astype(f32), rng.uniform(0, x_max, n).astype(f32),
+            rng.uniform(0, y_max, n).astype(f32))
+
+
+def _vertices(c, t, u, v):
+    """Float32 vertices at each sample, as ``_keep`` and ``_decide`` compute them."""
+    X = [c[k] + t * c[9 + k] + u * (c[18 + k] + t * c[24 + k]) for k in range(3)]
+    Y = [c[3 + k] + t * c[12 + k] + v * (c[21 + k] + t * c[27 + k]) for k in range(3)]
+    W = [c[6 + k] + t * c[15 + k] for k in range(3)]
+    return X, Y, W
+
+
+def _exact_edges(X, Y, W, x, y):
+    """The edge values of the float32 vertices and samples in float64 (products of two float32 are exact)."""
+    as64 = [[a.astype(np.float64) for a in P] for P in (X, Y, W)]
+    return _edges_np(*as64, x.astype(np.float64), y.astype(np.float64))
+
+
 def test_tolerance_bounds_float32_edge_error():
-    """``_tolerances``: for samples in the tile's intervals, the float32 edge
-    value never differs from ``_decide``'s float64 re-test by more than the
+    """``_tolerances`` (static, pinhole: ``_decide``'s own float32 values): for samples in the tile's
+    intervals, the float32 edge value never differs from ``_decide``'s float64 re-test by more than the
     per-edge tolerance (which is what lets pass 1 drop samples for good)."""
-    from units.sample_tester import _tolerances
+    from units.sample_tester import K_2D, _tolerances
 
     rng = np.random.default_rng(3)
-    f32 = np.float32
     worst = 0.0
     for _ in range(60):
-        scale = 10.0 ** rng.uniform(-2, 3)
-        c = np.zeros(40, np.float32)
-        c[0:9] = rng.uniform(-1, 1, 9) * scale  # X, Y, W at t = 0
-        c[6:9] = rng.uniform(0.05, 2, 3) * scale
-        c[9:18] = rng.uniform(-0.3, 0.3, 9) * scale  # motion
-        c[18:24] = rng.uniform(-0.2, 0.2, 6) * scale  # lens
-        c[24:30] = rng.uniform(-0.05, 0.05, 6) * scale
-        ta, tb = sorted(rng.uniform(0, 1, 2).astype(f32))
-        ua, ub, va, vb = f32(-1), f32(1), f32(-1), f32(1)
-        x_max, y_max = 64.0, 48.0
-        tol = -np.array(_tolerances(tuple(c), ta, tb, ua, ub, va, vb, x_max, y_max, f32(np.inf)), np.float64)
-        n = 2000
-        t = rng.uniform(ta, tb, n).astype(f32)
-        u = rng.uniform(-1, 1, n).astype(f32)
-        v = rng.uniform(-1, 1, n).astype(f32)
-        x = rng.uniform(0, x_max, n).astype(f32)
-        y = rng.uniform(0, y_max, n).astype(f32)
-        X = [c[k] + t * c[9 + k] + u * (c[18 + k] + t * c[24 + k]) for k in range(3)]
-        Y = [c[3 + k] + t * c[12 + k] + v * (c[21 + k] + t * c[27 + k]) for k in range(3)]
-        W = [c[6 + k] + t * c[15 + k] for k in range(3)]
+        c, intervals, x_max, y_max = _random_tile(rng)
+        tol = -np.array(_tolerances(tuple(c), *intervals, x_max, y_max, np.float32(np.inf), K_2D)[:3], np.float64)
+        t, u, v, x, y = _samples_in(rng, intervals, x_max, y_max)
+        X, Y, W = _vertices(c, t, u, v)
         e32 = _edges_np(X, Y, W, x, y)
-        e64 = _edges_np([a.astype(np.float64) for a in X], [a.astype(np.float64) for a in Y],
-                        [a.astype(np.float64) for a in W], x.astype(np.float64), y.astype(np.float64))
+        e64 = _exact_edges(X, Y, W, x, y)
         for k in range(3):
             err = np.abs(e32[k].astype(np.float64) - e64[k])
             assert np.all(err <= tol[k]), (k, err.max(), tol[k])
             worst = max(worst, float((err / tol[k]).max()))
     assert worst > 0.01  # the tolerance is a bound, not orders of magnitude off
+
+
+def test_vertex_form_tolerance_bounds_its_own_rounding():
+    """Pass 1's vertex form (e_k = B_i A_j - A_i B_j, A_i = X_i - x W_i, B_i = Y_i - y W_i, in float32)
+    stays within its share of the tolerance of the float64 edge value: the vertex form's tolerance less
+    the one bounding ``_decide``'s own values (``K_2D``'s with no eps cap), which a sample ``_decide``
+    accepts may be below zero by. So pass 1 never drops an accepted sample."""
+    from units.sample_tester import K_2D, K_5D, _tolerances
+
+    rng = np.random.default_rng(4)
+    worst = 0.0
+    for _ in range(60):
+        c, intervals, x_max, y_max = _random_tile(rng)
+        inf = np.float32(np.inf)
+        *own, every = _tolerances(tuple(c), *intervals, x_max, y_max, inf, K_5D)
+        decide = np.array(_tolerances(tuple(c), *intervals, x_max, y_max, inf, K_2D)[:3], np.float64)
+        assert not every
+        share = decide - np.array(own, np.float64)
+        t, u, v, x, y = _samples_in(rng, intervals, x_max, y_max)
+        X, Y, W = _vertices(c, t, u, v)
+        A = [X[k] - x * W[k] for k in range(3)]
+        B = [Y[k] - y * W[k] for k in range(3)]
+        e64 = _exact_edges(X, Y, W, x, y)
+        for k in range(3):
+            i, j = (k + 1) % 3, (k + 2) % 3
+            e32 = B[i] * A[j] - A[i] * B[j]
+            assert e32.dtype == np.float32
+            err = np.abs(e32.astype(np.float64) - e64[k])
+            assert np.all(err <= share[k]), (k, err.max(), share[k])
+            worst = max(worst, float((err / share[k]).max()))
+    assert worst > 0.01
+
+
+def test_vertex_form_keeps_every_sample_beyond_float32_range():
+    """A triangle whose products leave float32's range has no finite vertex-form tolerance: pass 1 then
+    keeps every sample in the intervals (``every``), and a moderate one's tolerance is finite."""
+    from units.sample_tester import K_5D, _tolerances
+
+    rng = np.random.default_rng(5)
+    c, intervals, x_max, y_max = _random_tile(rng)
+    inf = np.float32(np.inf)
+    assert not _tolerances(tuple(c), *intervals, x_max, y_max, inf, K_5D)[3]
+    huge = (c / np.abs(c).max() * np.float32(1e25)).astype(np.float32)
+    assert _tolerances(tuple(huge), *intervals, x_max, y_max, inf, K_5D)[3]
 
 
 def _edges_np(X, Y, W, x, y):

@@ -191,19 +191,28 @@ def _f32_at_most(a):
 # t; a non-finite t, which ``_decide`` rejects, may only be kept); any other
 # triangle's vertices are computed at each sample's (t, u, v) with the full
 # 5D formula that ``_decide`` evaluates. (A separate xyt formula would save
-# less: moving triangles keep most of the terms.)
+# less: moving triangles keep most of the terms.) With vertices per sample,
+# pass 1 takes each edge value in the vertex form of ``_keep`` (12
+# multiplications instead of 30 for the normals, the values and D).
 K_2D, K_XYUV, K_5D = 0, 2, 3
 
 
 @nb.njit(cache=True, inline="always")
-def _keep(kind, t, u, v, x, y, c, n0, n1, n2):
-    """Pass 1's test of one sample: False when an edge excludes it for certain.
+def _keep(kind, t, u, v, x, y, c, n0, n1, n2, every):
+    """Pass 1's test of one sample: False when an edge excludes it for certain
+    (always True with ``every``).
 
     ``c`` holds the triangle's float32 constants (see ``_constants``); ``n_k``
-    is minus the tolerance of edge k: a sample whose float32 edge value
-    (oriented by D) is below it is outside in float32 and in the float64
-    re-test of ``_decide`` alike (see ``_tolerances``)."""
-    one = np.float32(1.0)
+    is minus the tolerance of edge k (``_tolerances``). A static, pinhole
+    triangle's float32 edge values are ``_decide``'s own: oriented by D, one
+    below ``n_k`` is outside in float32 and in its float64 re-test alike.
+    Otherwise pass 1 computes the vertices as ``_decide`` does, then each
+    edge value in vertex form: with A_i = X_i - x W_i and B_i = Y_i - y W_i,
+    e_k = B_i A_j - A_i B_j, (i, j) = (k + 1, k + 2) mod 3, which is
+    (p_j x p_i) . (x, y, 1) in exact arithmetic though rounded differently;
+    ``n_k`` then bounds both roundings, and the sample is kept when its three
+    values reach ``n_k`` with one sign or the other (no D: whichever sign D
+    has, a covered sample's values all have it)."""
     if kind == K_2D:
         sg = c[39]
         e0 = (c[30] * x + c[31] * y + c[32]) * sg
@@ -230,16 +239,21 @@ def _keep(kind, t, u, v, x, y, c, n0, n1, n2):
             W0 = c[6] + t * c[15]
             W1 = c[7] + t * c[16]
             W2 = c[8] + t * c[17]
-        a0, b0, c0, a1, b1, c1, a2, b2, c2, D = _edges(X0, Y0, W0, X1, Y1, W1, X2, Y2, W2)
-        sg = one if D > 0 else -one
-        e0 = (a0 * x + b0 * y + c0) * sg
-        e1 = (a1 * x + b1 * y + c1) * sg
-        e2 = (a2 * x + b2 * y + c2) * sg
-    return (e0 >= n0) & (e1 >= n1) & (e2 >= n2)
+        A0 = X0 - x * W0
+        A1 = X1 - x * W1
+        A2 = X2 - x * W2
+        B0 = Y0 - y * W0
+        B1 = Y1 - y * W1
+        B2 = Y2 - y * W2
+        e0 = B1 * A2 - A1 * B2
+        e1 = B2 * A0 - A2 * B0
+        e2 = B0 * A1 - A0 * B1
+        return every | ((e0 >= n0) & (e1 >= n1) & (e2 >= n2)) | ((e0 <= -n0) & (e1 <= -n1) & (e2 <= -n2))
+    return every | ((e0 >= n0) & (e1 >= n1) & (e2 >= n2))
 
 
 @nb.njit(cache=True, inline="always")
-def _mark_range_fused(kind, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2):
+def _mark_range_fused(kind, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2, every):
     """The interval test and pass 1 in one pass over the contiguous samples
     ``k0 + i``, i < n (runs expected to lie mostly in the intervals, or
     samples packed beforehand, with unbounded intervals): candidates
@@ -257,7 +271,7 @@ def _mark_range_fused(kind, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va,
         v = sv[k]
         in_t = (t >= ta) & (t <= tb)
         in_a = in_t & (u >= ua) & (u <= ub) & (v >= va) & (v <= vb)
-        keep = _keep(kind, t, u, v, ax[k], ay[k], c, n0, n1, n2) & in_a
+        keep = _keep(kind, t, u, v, ax[k], ay[k], c, n0, n1, n2, every) & in_a
         cand[i] = keep
         n_t = np.int32(n_t + np.int32(in_t))
         n_a = np.int32(n_a + np.int32(in_a))
@@ -308,8 +322,9 @@ def _intervals_extra(n, k0, st, su, sv, stup, tup_mask, msk, ta, tb, ua, ub, va,
 
 
 @nb.njit(cache=True)
-def _tolerances(c, ta, tb, ua, ub, va, vb, x_max, y_max, eps):
-    """Per-edge pass-1 tolerances of a tile: minus min(eps, delta_k).
+def _tolerances(c, ta, tb, ua, ub, va, vb, x_max, y_max, eps, kind):
+    """Per-edge pass-1 tolerances of a tile for ``_keep``'s ``kind``:
+    (-tol_0, -tol_1, -tol_2, every), ``every`` when no finite bound holds.
 
     ``_decide`` re-tests in float64 every sample with an |e_k| <= eps, from
     the same float32 vertices and (x, y). The float32 value of edge k differs
@@ -320,10 +335,23 @@ def _tolerances(c, ta, tb, ua, ub, va, vb, x_max, y_max, eps):
     below 4 * 2^-53 of the same sum). Over a tile, |X|, |Y|, |W| of each
     vertex are bounded from the intervals, and |x| <= x_max, |y| <= y_max.
     delta_k is that bound with the factor 8 u, plus a tiny absolute term for
-    float32 underflow. A sample whose oriented float32 value is below
-    -delta_k is below 0 in float64 too, so ``_decide`` rejects it on either
-    path; below -eps, pass 1 always excluded it. Only which samples reach
-    ``_decide`` changes, never its answer.
+    float32 underflow; it bounds both values' distance from the exact E_k.
+
+    ``K_2D`` (``_decide``'s own float32 values): tol_k = min(eps, delta_k). A
+    sample whose oriented float32 value is below -delta_k is below 0 in
+    float64 too, so ``_decide`` rejects it on either path; below -eps, pass 1
+    always excluded it (a NaN or an infinite delta_k: eps).
+
+    The vertex form: a sample ``_decide`` accepts has sigma E_k >= -delta_k
+    for sigma the sign of its D (its float32 or its float64 values, whichever
+    it used, are >= 0 oriented). The vertex form's value differs from E_k by
+    at most 6.01 u (MB_i MA_j + MA_i MB_j), MA_i = |X_i| + x_max |W_i| and
+    MB_i = |Y_i| + y_max |W_i| bounding |A_i| and |B_i| (2 roundings in each
+    of A_i and B_i, 3 in the difference of their products); gamma_k is that
+    bound with the factor 8 u, and tol_k = delta_k + gamma_k. ``every`` when
+    a tolerance is not finite (a vertex or a product beyond float32's range):
+    pass 1 then keeps every sample in the intervals. Either way only which
+    samples reach ``_decide`` changes, never its answer.
     """
     T = max(abs(np.float64(ta)), abs(np.float64(tb)))
     U = max(abs(np.float64(ua)), abs(np.float64(ub)))
@@ -343,11 +371,24 @@ def _tolerances(c, ta, tb, ua, ub, va, vb, x_max, y_max, eps):
     d0 = k * ((my2 * mw1 + mw2 * my1) * x_max + (mw2 * mx1 + mx2 * mw1) * y_max + (mx2 * my1 + my2 * mx1)) + ab
     d1 = k * ((my0 * mw2 + mw0 * my2) * x_max + (mw0 * mx2 + mx0 * mw2) * y_max + (mx0 * my2 + my0 * mx2)) + ab
     d2 = k * ((my1 * mw0 + mw1 * my0) * x_max + (mw1 * mx0 + mx1 * mw0) * y_max + (mx1 * my0 + my1 * mx0)) + ab
-    # (a NaN or an infinite bound falls back to eps)
-    f0 = np.float32(d0) * np.float32(1.0001)
-    f1 = np.float32(d1) * np.float32(1.0001)
-    f2 = np.float32(d2) * np.float32(1.0001)
-    return (-(f0 if f0 < eps else eps), -(f1 if f1 < eps else eps), -(f2 if f2 < eps else eps))
+    if kind == K_2D:
+        # (a NaN or an infinite bound falls back to eps)
+        f0 = np.float32(d0) * np.float32(1.0001)
+        f1 = np.float32(d1) * np.float32(1.0001)
+        f2 = np.float32(d2) * np.float32(1.0001)
+        return -(f0 if f0 < eps else eps), -(f1 if f1 < eps else eps), -(f2 if f2 < eps else eps), False
+    ma0 = mx0 + x_max * mw0
+    ma1 = mx1 + x_max * mw1
+    ma2 = mx2 + x_max * mw2
+    mb0 = my0 + y_max * mw0
+    mb1 = my1 + y_max * mw1
+    mb2 = my2 + y_max * mw2
+    under = 1e-30 * (1.0 + ma0 + ma1 + ma2 + mb0 + mb1 + mb2)
+    f0 = np.float32(d0 + k * (mb1 * ma2 + ma1 * mb2) + under) * np.float32(1.0001)
+    f1 = np.float32(d1 + k * (mb2 * ma0 + ma2 * mb0) + under) * np.float32(1.0001)
+    f2 = np.float32(d2 + k * (mb0 * ma1 + ma0 * mb1) + under) * np.float32(1.0001)
+    every = not (np.isfinite(f0) and np.isfinite(f1) and np.isfinite(f2))
+    return -f0, -f1, -f2, every
 
 
 @nb.njit(cache=True, inline="always")
@@ -457,12 +498,14 @@ _LUT_POP = np.array([bin(p).count("1") for p in range(256)], np.int32)
 
 
 @nb.njit(cache=True)
-def _pass1_fused(kind, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2):
+def _pass1_fused(kind, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2, every):
     if kind == K_2D:
-        return _mark_range_fused(K_2D, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2)
+        return _mark_range_fused(K_2D, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2,
+                                 every)
     if kind == K_XYUV:
-        return _mark_range_fused(K_XYUV, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2)
-    return _mark_range_fused(K_5D, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2)
+        return _mark_range_fused(K_XYUV, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2,
+                                 every)
+    return _mark_range_fused(K_5D, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2, every)
 
 
 @nb.njit(cache=True, error_model="numpy")
@@ -699,9 +742,11 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
       them, a contiguous run of the tile's samples;
     * the interval test (t in t^, u in u^, v in v^ and, with two-stage
       culling or Interleave UVT, between the time lines and in the tuple
-      mask) and pass 1: the float32 edge functions, keeping as candidates
-      the samples in the intervals that no edge excludes for certain (within
-      a per-edge tolerance bounding float32 rounding, ``_tolerances``). Both
+      mask) and pass 1: the float32 edge functions (in vertex form for a
+      triangle whose vertices move or shift with the lens, ``_keep``),
+      keeping as candidates the samples in the intervals that no edge
+      excludes for certain (within a per-edge tolerance bounding float32
+      rounding, ``_tolerances``). Both
       in one pass over the run unless u^ and v^ hold only a small share of
       the samples (``uv_range``: the samples' u and v range), else the
       interval test first and pass 1 on the samples in the intervals,
@@ -928,11 +973,11 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
         fv = (min(vb, v_max) - max(va, v_min)) / (v_max - v_min) if v_max > v_min else 1.0
         # (packing first pays only for a small share: fused measured faster from 15% on)
         fused = not extra and fu * fv >= 0.15
-        n0, n1, n2 = _tolerances(c, ta, tb, ua, ub, va, vb, np.float64(px1) + xy_max, np.float64(py1 + row0) + xy_max,
-                                 edge_eps[tri])
+        n0, n1, n2, every = _tolerances(c, ta, tb, ua, ub, va, vb, np.float64(px1) + xy_max,
+                                        np.float64(py1 + row0) + xy_max, edge_eps[tri], kind)
         if fused:
             tile_t, tile_all, nc = _pass1_fused(kind, nlen, k0, st, su, sv, sx, sy, cand, ta, tb, ua, ub, va, vb, c,
-                                                n0, n1, n2)
+                                                n0, n1, n2, every)
         elif extra:
             tile_t, tile_all = _intervals_extra_fn(nlen, k0, st, su, sv, stup, tup_mask, msk, ta, tb, ua, ub, va, vb,
                                                    ln, mk)
@@ -989,7 +1034,7 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
                 cy[q] = nan
             # (the fused pass with unbounded intervals: the packed samples lie in them)
             _, _, nc = _pass1_fused(kind, m_pad, none, ct, cu, cv, cx, cy, cc, -inf, inf, -inf, inf, -inf, inf, c,
-                                    n0, n1, n2)
+                                    n0, n1, n2, every)
             if nc == 0:
                 continue
             m = _positions(ccw, m_pad // 8, pos)
