@@ -479,17 +479,97 @@ def test_vertex_form_tolerance_bounds_its_own_rounding():
     assert worst > 0.01
 
 
-def test_vertex_form_keeps_every_sample_beyond_float32_range():
-    """A triangle whose products leave float32's range has no finite vertex-form tolerance: pass 1 then
-    keeps every sample in the intervals (``every``), and a moderate one's tolerance is finite."""
+@pytest.mark.parametrize("scale", [1e25, 1e19])
+def test_vertex_form_keeps_every_sample_beyond_float32_range(scale):
+    """A triangle whose vertex-form products may leave float32's range keeps every sample in the
+    intervals (``every``): at 1e25 its tolerance is infinite; at 1e19 the tolerance is finite but the
+    products (x y W_i W_j about 1e42) are not. A moderate triangle's tolerance is finite."""
     from units.sample_tester import K_5D, _tolerances
 
     rng = np.random.default_rng(5)
     c, intervals, x_max, y_max = _random_tile(rng)
     inf = np.float32(np.inf)
     assert not _tolerances(tuple(c), *intervals, x_max, y_max, inf, K_5D)[3]
-    huge = (c / np.abs(c).max() * np.float32(1e25)).astype(np.float32)
-    assert _tolerances(tuple(huge), *intervals, x_max, y_max, inf, K_5D)[3]
+    huge = (c / np.abs(c).max() * np.float32(scale)).astype(np.float32)
+    *tol, every = _tolerances(tuple(huge), *intervals, x_max, y_max, inf, K_5D)
+    assert every
+    if scale == 1e19:
+        assert np.all(np.isfinite(tol))
+
+
+def _pass1_constants(p0, dp, l0, dl):
+    """A triangle's float32 constants laid out as the kernel fills them for ``_keep`` (vertices, motion,
+    lens; the 2D edges are unused by the other kinds)."""
+    c = np.zeros(40, np.float32)
+    for k in range(3):
+        c[k], c[3 + k], c[6 + k] = p0[k, 0], p0[k, 1], p0[k, 3]
+        c[9 + k], c[12 + k], c[15 + k] = dp[k, 0], dp[k, 1], dp[k, 3]
+        c[18 + k], c[21 + k] = l0[k, 0], l0[k, 1]
+        c[24 + k], c[27 + k] = dl[k, 0], dl[k, 1]
+    return tuple(c)
+
+
+@pytest.mark.parametrize("scale", [1e-12, 1e-3, 1.0, 1e6, 1e15, 1e17])
+def test_pass1_keeps_every_sample_the_exact_test_accepts(scale):
+    """``_keep`` in vertex form (through ``_pass1_fused`` with ``_tolerances``' bounds) keeps every sample
+    ``inside_test`` accepts: random moving, defocused triangles of either orientation, some with
+    vertices behind the eye (W < 0), at scales from 1e-12 to 1e17, with half the samples put on an edge
+    (a point between two projected vertices, rounded to float32), where only the tolerance keeps them."""
+    from units.sample_tester import K_XYUV, K_5D, _pass1_fused, _tolerances
+
+    rng = np.random.default_rng(int(np.log10(scale)) + 40)
+    f32 = np.float32
+    n = 4096
+    x_max, y_max = 40.0, 30.0
+    accepted_total = 0
+    for trial in range(40):
+        kind = K_XYUV if trial % 4 == 0 else K_5D
+        w = rng.uniform(0.5, 2.0, 3) * (np.where(rng.random(3) < 0.15, -1.0, 1.0))
+        p0 = np.zeros((3, 4), np.float32)
+        p0[:, 0] = rng.uniform(-5, x_max + 5, 3) * w
+        p0[:, 1] = rng.uniform(-5, y_max + 5, 3) * w
+        p0[:, 2] = rng.uniform(-0.5, 0.5, 3) * w
+        p0[:, 3] = w
+        dp = np.zeros((3, 4), np.float32)
+        dl = np.zeros((3, 4), np.float32)
+        if kind == K_5D:
+            dp[:, :2] = rng.uniform(-8, 8, (3, 2)) * w[:, None]
+            dp[:, 3] = rng.uniform(-0.1, 0.1, 3)
+            dl[:, :2] = rng.uniform(-1, 1, (3, 2))
+        l0 = np.zeros((3, 4), np.float32)
+        l0[:, :2] = rng.uniform(-6, 6, (3, 2))
+        p0, dp, l0, dl = (a * f32(scale) for a in (p0, dp, l0, dl))
+        c = _pass1_constants(p0, dp, l0, dl)
+        ta, tb = (f32(0), f32(1)) if kind == K_XYUV else tuple(np.sort(rng.uniform(0, 1, 2)).astype(f32))
+        t = rng.uniform(ta, tb, n).astype(f32)
+        u = rng.uniform(-1, 1, n).astype(f32)
+        v = rng.uniform(-1, 1, n).astype(f32)
+        x = rng.uniform(0, x_max, n).astype(f32)
+        y = rng.uniform(0, y_max, n).astype(f32)
+        X, Y, W = _vertices(np.array(c, np.float32), t, u, v)
+        half = n // 2
+        i, j = rng.integers(0, 3, half), rng.integers(1, 3, half)
+        j = (i + j) % 3
+        a = rng.uniform(0, 1, half)
+        rows = np.arange(half)
+        Xs, Ys, Ws = np.array(X, np.float64), np.array(Y, np.float64), np.array(W, np.float64)
+        px = (1 - a) * Xs[i, rows] / Ws[i, rows] + a * Xs[j, rows] / Ws[j, rows]
+        py = (1 - a) * Ys[i, rows] / Ws[i, rows] + a * Ys[j, rows] / Ws[j, rows]
+        ok = (px >= 0) & (px <= x_max) & (py >= 0) & (py <= y_max)
+        x[:half][ok] = px[ok].astype(f32)
+        y[:half][ok] = py[ok].astype(f32)
+        tri = 0
+        P0, DP, L0, DL = (a_[None] for a_ in (p0, dp, l0, dl))
+        eps = np.array([f32(1e-3) * f32(scale) ** 2], np.float32)
+        accepted = np.array([inside_test(P0, DP, L0, DL, tri, x[q], y[q], t[q], u[q], v[q], False, eps)[0]
+                             for q in range(n)])
+        *tol, every = _tolerances(c, ta, tb, f32(-1), f32(1), f32(-1), f32(1), x_max, y_max, eps[0], kind)
+        cand = np.zeros(n + 64, np.uint8)
+        _pass1_fused(kind, n, 0, t, u, v, x, y, cand, ta, tb, f32(-1), f32(1), f32(-1), f32(1), c, *tol, every)
+        kept = cand[:n].astype(bool)
+        assert np.all(kept[accepted]), (trial, np.flatnonzero(accepted & ~kept)[:5])
+        accepted_total += int(accepted.sum())
+    assert accepted_total > 1000  # the triangles cover something
 
 
 def _edges_np(X, Y, W, x, y):

@@ -195,6 +195,7 @@ def _f32_at_most(a):
 # pass 1 takes each edge value in the vertex form of ``_keep`` (12
 # multiplications instead of 30 for the normals, the values and D).
 K_2D, K_XYUV, K_5D = 0, 2, 3
+F32_MAX = float(np.finfo(np.float32).max)
 
 
 @nb.njit(cache=True, inline="always")
@@ -206,8 +207,9 @@ def _keep(kind, t, u, v, x, y, c, n0, n1, n2, every):
     is minus the tolerance of edge k (``_tolerances``). A static, pinhole
     triangle's float32 edge values are ``_decide``'s own: oriented by D, one
     below ``n_k`` is outside in float32 and in its float64 re-test alike.
-    Otherwise pass 1 computes the vertices as ``_decide`` does, then each
-    edge value in vertex form: with A_i = X_i - x W_i and B_i = Y_i - y W_i,
+    Otherwise pass 1 computes the vertices as ``_decide`` does (without the
+    time terms for ``K_XYUV``, see above), then each edge value in vertex
+    form: with A_i = X_i - x W_i and B_i = Y_i - y W_i,
     e_k = B_i A_j - A_i B_j, (i, j) = (k + 1, k + 2) mod 3, which is
     (p_j x p_i) . (x, y, 1) in exact arithmetic though rounded differently;
     ``n_k`` then bounds both roundings, and the sample is kept when its three
@@ -349,9 +351,12 @@ def _tolerances(c, ta, tb, ua, ub, va, vb, x_max, y_max, eps, kind):
     MB_i = |Y_i| + y_max |W_i| bounding |A_i| and |B_i| (2 roundings in each
     of A_i and B_i, 3 in the difference of their products); gamma_k is that
     bound with the factor 8 u, and tol_k = delta_k + gamma_k. ``every`` when
-    a tolerance is not finite (a vertex or a product beyond float32's range):
-    pass 1 then keeps every sample in the intervals. Either way only which
-    samples reach ``_decide`` changes, never its answer.
+    a tolerance is not finite, or when MA_i, MB_i or a sum of products
+    MB_i MA_j + MA_i MB_j may reach float32's largest value: the vertex form
+    could then overflow to inf or NaN, which no tolerance keeps, where
+    ``_decide``'s values (without its x y W_i W_j terms, which cancel) stay
+    finite. Pass 1 then keeps every sample in the intervals. Either way only
+    which samples reach ``_decide`` changes, never its answer.
     """
     T = max(abs(np.float64(ta)), abs(np.float64(tb)))
     U = max(abs(np.float64(ua)), abs(np.float64(ub)))
@@ -383,11 +388,17 @@ def _tolerances(c, ta, tb, ua, ub, va, vb, x_max, y_max, eps, kind):
     mb0 = my0 + y_max * mw0
     mb1 = my1 + y_max * mw1
     mb2 = my2 + y_max * mw2
+    s0 = mb1 * ma2 + ma1 * mb2
+    s1 = mb2 * ma0 + ma2 * mb0
+    s2 = mb0 * ma1 + ma0 * mb1
     under = 1e-30 * (1.0 + ma0 + ma1 + ma2 + mb0 + mb1 + mb2)
-    f0 = np.float32(d0 + k * (mb1 * ma2 + ma1 * mb2) + under) * np.float32(1.0001)
-    f1 = np.float32(d1 + k * (mb2 * ma0 + ma2 * mb0) + under) * np.float32(1.0001)
-    f2 = np.float32(d2 + k * (mb0 * ma1 + ma0 * mb1) + under) * np.float32(1.0001)
-    every = not (np.isfinite(f0) and np.isfinite(f1) and np.isfinite(f2))
+    f0 = np.float32(d0 + k * s0 + under) * np.float32(1.0001)
+    f1 = np.float32(d1 + k * s1 + under) * np.float32(1.0001)
+    f2 = np.float32(d2 + k * s2 + under) * np.float32(1.0001)
+    # a product or a difference of products that may leave float32's range would make the value inf or NaN,
+    # which no tolerance keeps (the bounds here are float64 and grow with every input, NaN included)
+    top = max(s0, s1, s2, ma0, ma1, ma2, mb0, mb1, mb2) * 1.0001
+    every = not (np.isfinite(f0) and np.isfinite(f1) and np.isfinite(f2) and top < F32_MAX)
     return -f0, -f1, -f2, every
 
 
