@@ -356,6 +356,43 @@ def test_a_failing_half_of_a_two_thread_layout_raises_and_leaves_no_thread(monke
     assert layouts._ready == {}
 
 
+@pytest.mark.parametrize("scale", [1e18, 1e25])
+def test_tester_keeps_every_sample_in_the_intervals_without_a_finite_bound(scale):
+    """Vertices scaled until pass 1's vertex form could overflow (1e18: most records' products may pass
+    float32's largest value while ``_decide``'s stay finite; 1e25: no finite tolerance): those records take
+    every sample in the intervals as a candidate, on the fused path and (with narrow lens intervals on every
+    other record) the packed one, and the tester still covers exactly what the plain loop covers."""
+    from pipeline_sim.sampling import make_samples
+    from units.sample_tester import K_5D, SampleTester, _f32_at_least, _f32_at_most, _tolerances
+
+    width, height, spp, ts = 24, 16, 8, 4
+    rng = np.random.default_rng(11)
+    q, r, lx, ly = random_draw(rng, 12, width, height)
+    setup, _, tiles = setup_and_tiles(q, r, lx, ly, width, height, tile_size=ts)
+    table = setup.table
+    for name in ("p0_32", "dp_32", "l0_32", "dl_32"):
+        getattr(table, name)[:] *= np.float32(scale)
+    table.edge_eps[:] = np.minimum(table.edge_eps.astype(np.float64) * scale * scale, 3e38).astype(np.float32)
+    narrow = np.arange(len(tiles["tri"])) % 2 == 1
+    for lo, hi in (("u_lo", "u_hi"), ("v_lo", "v_hi")):
+        mid = 0.5 * (tiles[lo] + tiles[hi])
+        tiles[lo] = np.where(narrow, mid - 0.1, tiles[lo])
+        tiles[hi] = np.where(narrow, mid + 0.1, tiles[hi])
+    every = 0
+    for i, tri in enumerate(tiles["tri"]):
+        c = _pass1_constants(table.p0_32[tri], table.dp_32[tri], table.l0_32[tri], table.dl_32[tri])
+        bounds = [f(tiles[k][i]) for k in ("t_lo", "t_hi", "u_lo", "u_hi", "v_lo", "v_hi")
+                  for f in ((_f32_at_least,) if k.endswith("lo") else (_f32_at_most,))]
+        x_max, y_max = (tiles["tx"][i] + 1) * ts + 1.0, (tiles["ty"][i] + 1) * ts + 1.0
+        every += _tolerances(c, *bounds, x_max, y_max, table.edge_eps[tri], K_5D)[3]
+    assert every > len(tiles["tri"]) // 2
+    samples = make_samples(width, height, spp, 3, lens=True, motion=True)
+    tester = SampleTester(None, table, samples, ts, False)
+    _, ev = assert_tester_matches_reference(tester, tiles)
+    if scale == 1e18:
+        assert ev["samples_covered"] > 10
+
+
 @pytest.mark.parametrize("algorithm", ["two_stage", "interleave_uvt"])
 def test_fast_paths_match_plain_loop_with_lines_and_masks(algorithm):
     from pipeline_sim.sampling import make_samples
@@ -522,6 +559,7 @@ def test_pass1_keeps_every_sample_the_exact_test_accepts(scale):
     n = 4096
     x_max, y_max = 40.0, 30.0
     accepted_total = 0
+    tested = 0
     for trial in range(40):
         kind = K_XYUV if trial % 4 == 0 else K_5D
         w = rng.uniform(0.5, 2.0, 3) * (np.where(rng.random(3) < 0.15, -1.0, 1.0))
@@ -564,12 +602,16 @@ def test_pass1_keeps_every_sample_the_exact_test_accepts(scale):
         accepted = np.array([inside_test(P0, DP, L0, DL, tri, x[q], y[q], t[q], u[q], v[q], False, eps)[0]
                              for q in range(n)])
         *tol, every = _tolerances(c, ta, tb, f32(-1), f32(1), f32(-1), f32(1), x_max, y_max, eps[0], kind)
+        if every:  # no finite bound: the kernel takes every sample in the intervals without pass 1
+            continue
         cand = np.zeros(n + 64, np.uint8)
-        _pass1_fused(kind, n, 0, t, u, v, x, y, cand, ta, tb, f32(-1), f32(1), f32(-1), f32(1), c, *tol, every)
+        _pass1_fused(kind, n, 0, t, u, v, x, y, cand, ta, tb, f32(-1), f32(1), f32(-1), f32(1), c, *tol)
         kept = cand[:n].astype(bool)
         assert np.all(kept[accepted]), (trial, np.flatnonzero(accepted & ~kept)[:5])
+        tested += 1
         accepted_total += int(accepted.sum())
     assert accepted_total > 1000  # the triangles cover something
+    assert tested >= 20  # and most take pass 1
 
 
 def _edges_np(X, Y, W, x, y):

@@ -199,9 +199,8 @@ F32_MAX = float(np.finfo(np.float32).max)
 
 
 @nb.njit(cache=True, inline="always")
-def _keep(kind, t, u, v, x, y, c, n0, n1, n2, every):
-    """Pass 1's test of one sample: False when an edge excludes it for certain
-    (always True with ``every``).
+def _keep(kind, t, u, v, x, y, c, n0, n1, n2):
+    """Pass 1's test of one sample: False when an edge excludes it for certain.
 
     ``c`` holds the triangle's float32 constants (see ``_constants``); ``n_k``
     is minus the tolerance of edge k (``_tolerances``). A static, pinhole
@@ -250,12 +249,12 @@ def _keep(kind, t, u, v, x, y, c, n0, n1, n2, every):
         e0 = B1 * A2 - A1 * B2
         e1 = B2 * A0 - A2 * B0
         e2 = B0 * A1 - A0 * B1
-        return every | ((e0 >= n0) & (e1 >= n1) & (e2 >= n2)) | ((e0 <= -n0) & (e1 <= -n1) & (e2 <= -n2))
-    return every | ((e0 >= n0) & (e1 >= n1) & (e2 >= n2))
+        return ((e0 >= n0) & (e1 >= n1) & (e2 >= n2)) | ((e0 <= -n0) & (e1 <= -n1) & (e2 <= -n2))
+    return (e0 >= n0) & (e1 >= n1) & (e2 >= n2)
 
 
 @nb.njit(cache=True, inline="always")
-def _mark_range_fused(kind, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2, every):
+def _mark_range_fused(kind, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2):
     """The interval test and pass 1 in one pass over the contiguous samples
     ``k0 + i``, i < n (runs expected to lie mostly in the intervals, or
     samples packed beforehand, with unbounded intervals): candidates
@@ -273,7 +272,7 @@ def _mark_range_fused(kind, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va,
         v = sv[k]
         in_t = (t >= ta) & (t <= tb)
         in_a = in_t & (u >= ua) & (u <= ub) & (v >= va) & (v <= vb)
-        keep = _keep(kind, t, u, v, ax[k], ay[k], c, n0, n1, n2, every) & in_a
+        keep = _keep(kind, t, u, v, ax[k], ay[k], c, n0, n1, n2) & in_a
         cand[i] = keep
         n_t = np.int32(n_t + np.int32(in_t))
         n_a = np.int32(n_a + np.int32(in_a))
@@ -509,14 +508,12 @@ _LUT_POP = np.array([bin(p).count("1") for p in range(256)], np.int32)
 
 
 @nb.njit(cache=True)
-def _pass1_fused(kind, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2, every):
+def _pass1_fused(kind, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2):
     if kind == K_2D:
-        return _mark_range_fused(K_2D, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2,
-                                 every)
+        return _mark_range_fused(K_2D, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2)
     if kind == K_XYUV:
-        return _mark_range_fused(K_XYUV, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2,
-                                 every)
-    return _mark_range_fused(K_5D, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2, every)
+        return _mark_range_fused(K_XYUV, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2)
+    return _mark_range_fused(K_5D, n, k0, st, su, sv, ax, ay, cand, ta, tb, ua, ub, va, vb, c, n0, n1, n2)
 
 
 @nb.njit(cache=True, error_model="numpy")
@@ -986,9 +983,12 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
         fused = not extra and fu * fv >= 0.15
         n0, n1, n2, every = _tolerances(c, ta, tb, ua, ub, va, vb, np.float64(px1) + xy_max,
                                         np.float64(py1 + row0) + xy_max, edge_eps[tri], kind)
-        if fused:
+        if fused and every:  # no finite pass-1 bound: every sample in the intervals is a candidate
+            tile_t, tile_all = _intervals_fn(nlen, k0, st, su, sv, cand, ta, tb, ua, ub, va, vb)
+            nc = tile_all
+        elif fused:
             tile_t, tile_all, nc = _pass1_fused(kind, nlen, k0, st, su, sv, sx, sy, cand, ta, tb, ua, ub, va, vb, c,
-                                                n0, n1, n2, every)
+                                                n0, n1, n2)
         elif extra:
             tile_t, tile_all = _intervals_extra_fn(nlen, k0, st, su, sv, stup, tup_mask, msk, ta, tb, ua, ub, va, vb,
                                                    ln, mk)
@@ -1043,9 +1043,13 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
                 cv[q] = zero
                 cx[q] = nan
                 cy[q] = nan
-            # (the fused pass with unbounded intervals: the packed samples lie in them)
-            _, _, nc = _pass1_fused(kind, m_pad, none, ct, cu, cv, cx, cy, cc, -inf, inf, -inf, inf, -inf, inf, c,
-                                    n0, n1, n2, every)
+            if every:  # no finite pass-1 bound: every packed sample is a candidate
+                cc[:m] = 1
+                cc[m:m_pad] = 0
+                nc = m
+            else:  # (the fused pass with unbounded intervals: the packed samples lie in them)
+                _, _, nc = _pass1_fused(kind, m_pad, none, ct, cu, cv, cx, cy, cc, -inf, inf, -inf, inf, -inf, inf, c,
+                                        n0, n1, n2)
             if nc == 0:
                 continue
             m = _positions(ccw, m_pad // 8, pos)
