@@ -22,13 +22,13 @@ The memory a run takes is the sum of terms, each from the settings: the
 per-triangle tables (the draw and triangle setup's constants); the samples
 and multisample buffers of one screen region (``simulation.region_samples``
 caps them); the work in flight between units (a triangle batch's tiles, a
-tile batch's covered samples); z-cull's boxes over the whole frame; the
-shading cache; the resolved image with the files written from it; and a
-constant for compiling the kernels and drawing the report's figures. The
-per-item sizes are the arrays' own (:data:`BYTES`), with the transient
-copies a step holds while it replaces one array by another;
-``tests/test_preflight.py`` checks the estimate against the peak resident
-memory of real runs.
+tile batch's covered samples); z-cull's boxes over the whole frame and its
+refresh state for a region's pixels; the shading cache; the resolved image
+with the files written from it; and a constant for compiling the kernels and
+drawing the report's figures. The per-item sizes are the arrays' own
+(:data:`BYTES`), with the transient copies a step holds while it replaces
+one array by another; ``tests/test_preflight.py`` checks the estimate
+against the peak resident memory of real runs.
 """
 
 from __future__ import annotations
@@ -62,8 +62,14 @@ BYTES = {
     # recent regions' sample sets (3 x 21 B), the sample tester's tile-major
     # copies of the current region and of the next, made ahead (2 x 21 B),
     # the ROP's depth and colour, twice while one replaces the other
-    # (2 x 20 B), and z-cull's box index (1 B)
-    "region_sample": 3 * 21 + 2 * 21 + 2 * 20 + 1,
+    # (2 x 20 B), and z-cull's box of the sample and its place among its
+    # pixel's samples grouped by box, for the current region and the next
+    # (2 x 3 B)
+    "region_sample": 3 * 21 + 2 * 21 + 2 * 20 + 2 * 3,
+    # a pixel of a region and z-cull box: where the box's samples start among
+    # the pixel's, for the current region and the next (2 x int32), and the
+    # ROP's refresh state, the box's largest depth at the pixel and a flag
+    "region_pixel_box": 2 * 4 + 4 + 1,
     # a tile record out of the tile traverser (triangle, x, y: 3 x int32)
     "tile_record": 12,
     # a covered-sample record out of the sample tester (triangle, pixel,
@@ -143,7 +149,8 @@ def estimate_memory(width: int, height: int, spp: int, triangles: int, arch: Arc
         "triangles": triangles * BYTES["triangle"],
         "region samples": region_samples * BYTES["region_sample"],
         "in flight": tiles + samples,
-        "z-cull": frame_tiles * (boxes * BYTES["zcull_box"] + BYTES["zcull_tile"]),
+        "z-cull": frame_tiles * (boxes * BYTES["zcull_box"] + BYTES["zcull_tile"])
+        + rows * width * (boxes + 1) * BYTES["region_pixel_box"],
         "shading cache": arch.shading.cache_entries * BYTES["cache_entry"],  # allocated in every mode
         "image": images * width * height * BYTES["pixel"],
         "kernels and reports": FIXED_BYTES,

@@ -185,12 +185,18 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     plan = plan_regions(draw.width, draw.height, spp, p.simulation.region_samples, step)
     # a region's samples are made when a unit first needs them (a region with triangles may get no batch:
     # the default scene's top one), and each next region's while the one before runs, with the sample
-    # tester's layout of them (a conservative pass tests no samples; a set the tester asks for is laid
-    # out with it, on both cores, before the next one is started; one another unit asked for first is
-    # laid out by the tester on its first batch there); the pattern's shared (u, v, t) tuples (Interleave UVT) and
+    # tester's layout of them and z-cull's grouping of them by box for the ROP's refreshes (a conservative
+    # pass tests no samples; a set the tester asks for is laid out with it, on both cores, before the next
+    # one is started; one another unit asked for first is laid out by the tester on its first batch there,
+    # grouped by the ROP's first refresh there); the pattern's shared (u, v, t) tuples (Interleave UVT) and
     # the check of a sample table come with a set of no rows
     layouts = TileMajorLayouts(ts)
-    samples = RegionSamples(plan, made, prepare=None if conservative else layouts.prepare)
+
+    def prepare(s, waited_for: bool = False):
+        layouts.prepare(s, waited_for)
+        return zcull.groups.prepare(s) if zcull.active else s
+
+    samples = RegionSamples(plan, made, prepare=None if conservative else prepare)
     tuples = made((0, 0)).tuples
     algorithm = culling.algorithm(arch.tile_test.algorithm)
     if algorithm.NEEDS_TUPLES and tuples is None:

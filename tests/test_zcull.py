@@ -243,12 +243,17 @@ def brute_zmax(samples, depth, tile_size, nt, nl):
     return out
 
 
-def zcull_and_rop(cfg, state, w, h, spp, ts, rows, seed):
+def zcull_and_rop(cfg, state, w, h, spp, ts, rows, seed, ahead=False):
     """A z-cull unit and a ROP refreshing it over regions of ``rows`` rows, region 0 open: (plan, the regions'
-    samples, z-cull, ROP)."""
+    samples, z-cull, ROP). ``ahead``: each next region's samples are made, and grouped by z-cull box, on a
+    background thread while the one before is refreshed (as a pass does); else the groups are made by
+    each region's first refresh."""
     plan = RegionPlan(w, h, rows)
-    regions = RegionSamples(plan, lambda r: make_samples(w, h, spp, seed, lens=True, motion=True, rows=r))
     zcull = zc.ZCull(cfg, state.depth_test, ts, w, h, 1.0)
+    regions = RegionSamples(plan, lambda r: make_samples(w, h, spp, seed, lens=True, motion=True, rows=r),
+                            prepare=zcull.groups.prepare if ahead else None)
+    if ahead:
+        regions.will_visit(range(plan.count))
     rop = Rop(RopConfig(), state, w, h, spp, (0, 0, 0, 1), 1.0, zcull, regions.region(0), rows=plan.bounds(0))
     return plan, regions, zcull, rop
 
@@ -412,20 +417,23 @@ def numpy_zmax(samples, depth, tile_size, nt, nl):
     return out.reshape(-1, nbox)
 
 
-@pytest.mark.parametrize("func,slices,boxes,spp,rows,group", [
-    ("less", 4, 2, 64, 8, 1), ("lequal", 4, 2, 64, 8, 3), ("less", 2, 3, 32, 12, 2), ("lequal", 1, 1, 16, 4, 1)])
-def test_refresh_of_many_samples_per_box_matches_numpy(func, slices, boxes, spp, rows, group):
+@pytest.mark.parametrize("func,slices,boxes,spp,rows,group,ahead", [
+    ("less", 4, 2, 64, 8, 1, False), ("lequal", 4, 2, 64, 8, 3, True), ("less", 2, 3, 32, 12, 2, False),
+    ("lequal", 1, 1, 16, 4, 1, True), ("less", 4, 2, 64, 4, 2, True)])
+def test_refresh_of_many_samples_per_box_matches_numpy(func, slices, boxes, spp, rows, group, ahead):
     """Many samples per pixel and box, as at high spp: random batches of random pixels (each pixel's
     samples together, or scattered), a random subset of each pixel's samples at random depths (a few
     levels with ties, +0 and -0, and continuous ones), over several tiles and regions, refreshed after each
-    ``group`` of batches (the ordered refresh takes several requests). After each refresh every tile's
-    boxes equal a numpy recomputation from the whole depth buffer, bit for bit, and the work counted is
-    what a rescan of the stale boxes reads (those a depth not below their zmax was replaced in, all of a
-    tile's first refresh)."""
-    rng = np.random.default_rng(spp + slices + boxes + rows + group)
+    ``group`` of batches (the ordered refresh takes several requests), with the samples' box groups made
+    ahead or by each region's first refresh. After each refresh every tile's boxes equal a numpy
+    recomputation from the whole depth buffer, bit for bit, and the work counted is what a rescan of the
+    stale boxes reads (those a depth not below their zmax was replaced in, all of a tile's first
+    refresh)."""
+    rng = np.random.default_rng(spp + slices + boxes + rows + group + ahead)
     w, h, ts = 14, 12, 4
     cfg = dataclasses.replace(load_arch().zcull, time_slices=slices, lens_boxes=boxes)
-    plan, regions, zcull, rop = zcull_and_rop(cfg, PassState(depth_test=func), w, h, spp, ts, rows, seed=9)
+    plan, regions, zcull, rop = zcull_and_rop(cfg, PassState(depth_test=func), w, h, spp, ts, rows, seed=9,
+                                              ahead=ahead)
     levels = np.array([0.0, -0.0, 0.5, 0.5, 0.75, 0.9], np.float32)
     for r0, r1, samples in each_region(plan, regions, rop):
         t0 = r0 // ts * zcull.tiles_x
@@ -482,6 +490,63 @@ def test_refresh_of_many_samples_per_box_matches_numpy(func, slices, boxes, spp,
         # the numpy recomputation agrees with the loop over samples
         np.testing.assert_array_equal(numpy_zmax(samples, rop.depth, ts, slices, boxes).view(np.uint32),
                                       brute_zmax(samples, rop.depth, ts, slices, boxes).view(np.uint32))
+
+
+@pytest.mark.parametrize("nt,nl,spp,pattern", [(4, 2, 64, "net5"), (2, 3, 16, "random"), (1, 1, 8, "net"),
+                                               (16, 3, 32, "table"), (3, 2, 1, "stratified")])
+def test_box_groups_match_a_stable_sort_by_box(nt, nl, spp, pattern):
+    """``box_groups_kernel`` against numpy: each sample's box as ``brute_box`` finds it, and each pixel's
+    samples in a stable sort by box (``np.argsort`` of the boxes, stable) with each box's run where the
+    counts of the boxes before it end. A table puts samples on the boxes' edges: t = 0 and just below 1,
+    u and v at -1, 0 and 1."""
+    w, h = 5, 3
+    rng = np.random.default_rng(nt * 100 + nl * 10 + spp)
+    table = None
+    if pattern == "table":
+        table = rng.random((spp, 5))
+        table[::4, 4] = 0.0
+        table[1::4, 4] = np.nextafter(1.0, 0.0)
+        table[:, 2:4] = rng.choice([-1.0, 0.0, 1.0, 0.3, -0.7], (spp, 2))
+    samples = make_samples(w, h, spp, 11, lens=True, motion=True, pattern=pattern, table=table,
+                           lens_shape="square" if pattern == "table" else "disk")
+    n, npix, nbox = w * h * spp, w * h, nt * nl * nl
+    box_of, order = np.empty(n, np.uint8), np.empty(n, np.uint16)
+    start = np.empty((npix, nbox + 1), np.int32)
+    zc.box_groups_kernel(spp, nt, nl, samples.t, samples.u, samples.v, box_of, order, start)
+    expect = np.array([brute_box(samples, k, nt, nl) for k in range(n)])
+    np.testing.assert_array_equal(box_of, expect)
+    per_pixel = expect.reshape(npix, spp)
+    np.testing.assert_array_equal(order.reshape(npix, spp), np.argsort(per_pixel, axis=1, kind="stable"))
+    counts = np.stack([np.bincount(b, minlength=nbox) for b in per_pixel])
+    np.testing.assert_array_equal(start, np.concatenate([np.zeros((npix, 1), int), counts.cumsum(axis=1)], axis=1))
+
+
+def test_box_groups_prepared_taken_and_their_buffers_reused(monkeypatch):
+    """``BoxGroups``: groups prepared ahead and groups made on ``take`` hold what a fresh unit makes; a
+    later region's groups are made in the buffers of those taken before (no longer read), and a region's
+    prepared groups are taken, not made again."""
+    w, h, spp = 6, 8, 16
+    sets = [make_samples(w, h, spp, 5, lens=True, motion=True, rows=(r, r + 2)) for r in range(0, 8, 2)]
+    groups = zc.BoxGroups(4, 2)
+
+    def check(got, s):
+        for a, b in zip(got, zc.BoxGroups(4, 2).take(s)):
+            np.testing.assert_array_equal(a, b)
+
+    groups.prepare(sets[0])
+    groups.prepare(sets[1])
+    first = groups.take(sets[1])  # region 1 first, as prepared (region 0's, passed, are dropped)
+    check(first, sets[1])
+    again = groups.take(sets[2])  # not prepared: made now, where region 1's were
+    check(again, sets[2])
+    assert np.shares_memory(again[0], first[0]) and np.shares_memory(again[2], first[2])
+    groups.prepare(sets[3])
+    calls = []
+    with monkeypatch.context() as m:
+        m.setattr(zc, "box_groups_kernel", lambda *a: calls.append(a))
+        last = groups.take(sets[3])
+    assert not calls  # taken as prepared
+    check(last, sets[3])
 
 
 @pytest.mark.parametrize("func", [zc.CULL_LESS, zc.CULL_LEQUAL])

@@ -20,6 +20,7 @@ comparing there (``interval_query_kernel``).
 
 from __future__ import annotations
 
+import threading
 import weakref
 from collections import deque
 
@@ -170,8 +171,35 @@ def _box_max(depth, order, k0, k1):
 
 
 @nb.njit(cache=True, nogil=True)
-def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st, su, sv, depth, zmax, exact, slot,
-                   box_of, order, start, pmax, dirty, work, scanned):
+def box_groups_kernel(spp, nt, nl, st, su, sv, box_of, order, start):
+    """Each sample's z-cull box and each pixel's samples grouped by box, for the ROP's refresh of the
+    boxes' zmax (Nilsson12 §3; ``refresh_kernel``): ``box_of[k]`` the box of sample k (its (t, u, v) in
+    ``st``, ``su``, ``sv``), ``order[p * spp:(p + 1) * spp]`` pixel p's sample indices in box order (a
+    stable counting sort, so in sample order within a box) and ``start[p, b] .. start[p, b + 1]`` box b's
+    run of them. Depends on the samples only."""
+    nbox = start.shape[1] - 1
+    cursor = np.empty(nbox, np.int32)
+    for p in range(start.shape[0]):
+        k0, k1 = p * spp, (p + 1) * spp
+        boxes, group, ends = box_of[k0:k1], order[k0:k1], start[p]  # the pixel's own (loops from 0 vectorize)
+        pt, pu, pv = st[k0:k1], su[k0:k1], sv[k0:k1]
+        for s in range(spp):
+            boxes[s] = _sample_box(pt[s], pu[s], pv[s], nt, nl)
+        ends[:] = 0
+        for s in range(spp):
+            ends[boxes[s] + 1] += 1
+        for b in range(nbox):
+            ends[b + 1] += ends[b]
+            cursor[b] = ends[b]
+        for s in range(spp):
+            b = boxes[s]
+            group[cursor[b]] = s
+            cursor[b] += 1
+
+
+@nb.njit(cache=True, nogil=True)
+def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, depth, zmax, exact, slot, box_of, order, start,
+                   pmax, dirty, work, scanned):
     """Set zmax of every box of the tiles touched by ``pix`` to the largest depth of its samples
     (Nilsson12 §3: the ROP keeps z-cull's per-tile bounds up to date).
 
@@ -189,9 +217,10 @@ def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st,
 
     What the modelled rescan reads is computed without reading it: the same
     argument per pixel keeps each pixel's largest depth per box (``pmax``,
-    with each sample's box in ``box_of`` and the pixel's samples grouped by
-    box in ``order`` and ``start``, all set at the tile's first refresh)
-    exact by rereading only the (pixel, box) pairs a write may have lowered
+    set at the tile's first refresh) exact by rereading only the (pixel, box)
+    pairs a write may have lowered, through each sample's box ``box_of`` and
+    the pixel's samples grouped by box, ``order`` and ``start`` (made with the
+    samples, ``box_groups_kernel``)
     (``dirty``: all False between calls). A tile's zmax is the first largest
     of its pixels' maxima in row-major order, which is the first largest of
     its samples in the order a scan reads them: the same bits.
@@ -247,7 +276,6 @@ def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st,
         base = p * spp
         pmax[p, b] = _box_max(depth[base:base + spp], order[base:base + spp], start[p, b], start[p, b + 1])
     height_px = depth.shape[0] // (width * spp)
-    cursor = np.empty(nbox, np.int32)
     n_scanned = 0
     for j in range(n_touched):
         tile = touched[j]
@@ -269,23 +297,9 @@ def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st,
         read = 0
         for py in range(tyy * tile_size, min((tyy + 1) * tile_size, height_px)):
             for p in range(py * width + x0, py * width + x1):
-                if fresh:  # the pixel's first refresh: its samples' boxes, grouped by box, and their largest
-                    # depths; on the pixel's own arrays (loops from 0 vectorize)
+                if fresh:  # the pixel's first refresh: the largest depth of each of its boxes
                     k0, k1 = p * spp, (p + 1) * spp
-                    boxes, group, own, ends = box_of[k0:k1], order[k0:k1], depth[k0:k1], start[p]
-                    pt, pu, pv = st[k0:k1], su[k0:k1], sv[k0:k1]
-                    for s in range(spp):
-                        boxes[s] = _sample_box(pt[s], pu[s], pv[s], nt, nl)
-                    ends[:] = 0
-                    for s in range(spp):
-                        ends[boxes[s] + 1] += 1
-                    for b in range(nbox):
-                        ends[b + 1] += ends[b]
-                        cursor[b] = ends[b]
-                    for s in range(spp):
-                        b = boxes[s]
-                        group[cursor[b]] = s
-                        cursor[b] += 1
+                    group, own, ends = order[k0:k1], depth[k0:k1], start[p]
                     for b in range(nbox):
                         pmax[p, b] = _box_max(own, group, ends[b], ends[b + 1])
                 for b in range(nbox):  # every box recomputed; only the stale boxes' samples count as read
@@ -295,6 +309,60 @@ def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st,
                         zrow[b] = pmax[p, b]
         work[RF_READ] += read
     return n_scanned
+
+
+class BoxGroups:
+    """Each sample's z-cull box and each pixel's samples grouped by box (``box_groups_kernel``), per sample
+    set: what the ROP's refresh of a screen region reads besides its depths.
+
+    They depend on the samples only, so ``prepare`` makes a set's on the thread that makes the set ahead
+    (``pipeline_sim.regions.RegionSamples``, beside the sample tester's layout), and ``take`` hands the
+    refresh a set's groups (made then if they were not prepared); groups prepared for sets of earlier rows
+    (regions the pipeline has passed) are dropped, their buffers, like those of the groups taken before,
+    going to the next set's. Thread-safe.
+    """
+
+    def __init__(self, nt: int, nl: int):
+        self.nt = nt
+        self.nl = nl
+        self._lock = threading.Lock()
+        self._ready: dict[int, tuple] = {}  # by id(samples): (samples, groups)
+        self._free: tuple | None = None  # the buffers of groups no longer read
+        self._taken: tuple | None = None
+
+    def prepare(self, samples, waited_for: bool = False):
+        """Make the groups of ``samples`` now, for a later ``take``; returns ``samples``. (``waited_for``:
+        as ``TileMajorLayouts.prepare`` takes it; the groups are made on this thread either way.)"""
+        groups = self._make(samples)
+        with self._lock:
+            self._ready[id(samples)] = (samples, groups)
+        return samples
+
+    def take(self, samples) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(box_of, order, start) of ``samples``: prepared, else made now."""
+        with self._lock:
+            got = self._ready.pop(id(samples), None)
+            stale = [k for k, (s, _) in self._ready.items() if s.row0 < samples.row0]
+            for k in stale:
+                self._free = self._ready.pop(k)[1]
+            if self._taken is not None:
+                self._free = self._taken
+            self._taken = None
+        groups = got[1] if got is not None else self._make(samples)
+        self._taken = groups
+        return groups
+
+    def _make(self, samples) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        n, spp = len(samples.t), samples.spp
+        shape = (n // spp, self.nt * self.nl * self.nl + 1)
+        with self._lock:
+            free, self._free = self._free, None
+        if free is not None and len(free[0]) >= n and len(free[2]) >= shape[0]:
+            box_of, order, start = free[0][:n], free[1][:n], free[2][:shape[0]]
+        else:
+            box_of, order, start = np.empty(n, np.uint8), np.empty(n, np.uint16), np.empty(shape, np.int32)
+        box_groups_kernel(spp, self.nt, self.nl, samples.t, samples.u, samples.v, box_of, order, start)
+        return box_of, order, start
 
 
 class ZCull:
@@ -326,13 +394,12 @@ class ZCull:
         # refresh state: per tile, whether zmax is exact for the ROP's current
         # depth buffer (``_buffer``) and a scratch slot; each sample's box, and
         # per pixel its samples grouped by box (indices in the pixel: below
-        # MAX_SPP = 2^16), each box's largest depth and a scratch flag (see
-        # ``refresh_kernel``)
+        # MAX_SPP = 2^16), from ``groups``, each box's largest depth and a
+        # scratch flag (see ``refresh_kernel``)
         self.exact = np.zeros(ntiles, np.uint8)
         self.slot = np.zeros(ntiles, np.int64)
-        self.box_of = np.empty(0, np.uint8)
-        self.order = np.empty(0, np.uint16)
-        self.start = np.empty((0, nbox + 1), np.int32)
+        self.groups = BoxGroups(self.nt, self.nl)
+        self._grouped: tuple = ()
         self.pmax = np.empty((0, nbox), np.float32)
         self.dirty = np.zeros((0, nbox), np.bool_)
         self._buffer = None
@@ -399,12 +466,10 @@ class ZCull:
                 self._buffer = weakref.ref(depth)
                 self.exact[:] = 0
                 npix, nbox = len(depth) // samples.spp, self.zmax.shape[1]
+                self._grouped = self.groups.take(samples)
                 # a tile's entries are set at its first refresh (``dirty`` stays all False): those of the last
                 # buffer, if of its size, serve
-                if (len(self.box_of), len(self.pmax)) != (len(depth), npix):
-                    self.box_of = np.empty(len(depth), np.uint8)
-                    self.order = np.empty(len(depth), np.uint16)
-                    self.start = np.empty((npix, nbox + 1), np.int32)
+                if len(self.pmax) != npix:
                     self.pmax = np.empty((npix, nbox), np.float32)
                     self.dirty = np.zeros((npix, nbox), np.bool_)
             # ``samples`` and ``depth`` hold rows from samples.row0, a tile row
@@ -412,10 +477,9 @@ class ZCull:
             first = samples.row0 // self.tile_size * self.tiles_x
             local = pix - samples.row0 * self.width if samples.row0 else pix
             scanned = np.empty(min(len(pix), len(self.zmax) - first), np.int64)
-            n = refresh_kernel(local, sidx, prior, self.width, samples.spp, self.tile_size, self.tiles_x, self.nt,
-                               self.nl, samples.t, samples.u, samples.v, depth, self.refreshed_zmax[first:],
-                               self.exact[first:], self.slot[first:], self.box_of, self.order, self.start, self.pmax,
-                               self.dirty, work, scanned)
+            n = refresh_kernel(local, sidx, prior, self.width, samples.spp, self.tile_size, self.tiles_x, depth,
+                               self.refreshed_zmax[first:], self.exact[first:], self.slot[first:], *self._grouped,
+                               self.pmax, self.dirty, work, scanned)
             tiles = scanned[:n] + first
         rows = self.refreshed_zmax[tiles]
         if publish:
