@@ -24,13 +24,15 @@ from pipeline_sim.output_folder import hold_lock, ordinary_mode, staging_prefix
 
 
 def linear_to_srgb8(image: np.ndarray) -> np.ndarray:
-    """Linear float (H, W, 3 or 4) RGB(A) to 8-bit sRGB RGB (IEC 61966-2-1
+    """Linear float (H, W, channels) RGB(A) to 8-bit sRGB RGB (IEC 61966-2-1
     transfer curve), converted a band of rows at a time: the float64
-    temporaries stay small however large the image."""
+    temporaries stay small however large the image. Of an image of fewer
+    than three channels, the first is shown as grey."""
     out = np.empty(image.shape[:2] + (3,), np.uint8)
     rows = max(1, (1 << 18) // max(image.shape[1], 1))
+    shown = slice(0, 3) if image.shape[2] >= 3 else slice(0, 1)
     for r in range(0, image.shape[0], rows):
-        rgb = np.clip(np.nan_to_num(image[r : r + rows, :, :3].astype(np.float64)), 0.0, 1.0)
+        rgb = np.clip(np.nan_to_num(image[r : r + rows, :, shown].astype(np.float64)), 0.0, 1.0)
         srgb = np.where(rgb <= 0.0031308, 12.92 * rgb, 1.055 * np.power(rgb, 1 / 2.4) - 0.055)
         out[r : r + rows] = np.round(srgb * 255.0)
     return out
@@ -40,17 +42,35 @@ def write_png(path: Path, image: np.ndarray) -> None:
     Image.fromarray(linear_to_srgb8(image), mode="RGB").save(path)
 
 
+def exr_channel_names(channels: int) -> list[str]:
+    """The OpenEXR channel names of an image of ``channels`` channels: R, G, B, A of four, R, G, B of
+    three, Y of one, else C0, C1, ..."""
+    return {1: ["Y"], 3: ["R", "G", "B"], 4: ["R", "G", "B", "A"]}.get(channels, [f"C{i}" for i in range(channels)])
+
+
 def write_exr(path: Path, image: np.ndarray) -> None:
-    """Linear float32 RGBA OpenEXR (ZIP compressed)."""
+    """Linear float32 OpenEXR (ZIP compressed) of an (H, W, channels) image, channels named by
+    ``exr_channel_names``."""
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    rgba = np.ascontiguousarray(image, dtype=np.float32)  # no copy of a float32 image
-    with OpenEXR.File(header, {"RGBA": rgba}) as f:
+    image = np.asarray(image, dtype=np.float32)
+    names = exr_channel_names(image.shape[2])
+    if len(names) in (3, 4):  # interleaved, as one multi-channel entry: no copy of a float32 image
+        channels = {"".join(names): np.ascontiguousarray(image)}
+    else:
+        channels = {name: np.ascontiguousarray(image[:, :, i]) for i, name in enumerate(names)}
+    with OpenEXR.File(header, channels) as f:
         f.write(str(path))
 
 
 def read_exr(path: Path) -> np.ndarray:
+    """An image ``write_exr`` wrote, (H, W, channels) float32."""
     with OpenEXR.File(str(path)) as f:
-        return np.asarray(f.channels()["RGBA"].pixels)
+        found = {name: np.asarray(c.pixels) for name, c in f.channels().items()}
+    for packed in ("RGBA", "RGB"):
+        if packed in found:
+            return found[packed]
+    names = exr_channel_names(len(found))
+    return np.stack([found[name] for name in names], axis=2)
 
 
 def write_json(path: Path, data: dict) -> None:
