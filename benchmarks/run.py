@@ -510,6 +510,7 @@ def bench_per_sample(cfg: dict) -> dict:
         out[f"{key}_s"] = float(np.median([w for w, _ in times]))
         out[f"{key}_cpu_s"] = float(np.median([c for _, c in times]))
         out[f"{key}_ns_per_sample"] = 1e9 * out[f"{key}_s"] / samples
+        out[f"{key}_ns_per_sample_range"] = [1e9 * f([w for w, _ in times]) / samples for f in (min, max)]
     out["run_ahead_depth"] = depth
     out["ns_per_sample"] = out["run_ahead_ns_per_sample"]
     out["ns_per_sample_cpu"] = 1e9 * out["run_ahead_cpu_s"] / samples
@@ -819,7 +820,10 @@ def report(results: dict) -> tuple[str, list[dict]]:
                    f"the tile test, the sample tester, shading and the ROP up to {ps['run_ahead_depth']} batches ahead on "
                    f"threads of their own (simulation.run_ahead) {ps['run_ahead_ns_per_sample']:.1f} ns "
                    f"({ps['run_ahead_s']:.2f} s); "
-                   f"medians of {n_plain} plain runs each, alternately")
+                   f"medians of {n_plain} plain runs each, alternately (the runs as shipped "
+                   f"{ps['run_ahead_ns_per_sample_range'][0]:.1f} to {ps['run_ahead_ns_per_sample_range'][1]:.1f} ns, "
+                   f"on one thread {ps['one_thread_ns_per_sample_range'][0]:.1f} to "
+                   f"{ps['one_thread_ns_per_sample_range'][1]:.1f} ns)")
         out.append(f"   where the work goes, one thread, median of {results['config']['instrumented']} instrumented "
                    f"runs: {ps['instrumented_ns_per_sample']:.1f} ns a sample wall "
                    f"({ps['instrumented_ns_per_sample_cpu']:.1f} CPU); the tester "
@@ -843,6 +847,8 @@ def report(results: dict) -> tuple[str, list[dict]]:
             "simulation.run_ahead = 0, wall")
         add("per_sample", "run_ahead_ns_per_sample", ps["run_ahead_ns_per_sample"], "ns",
             f"simulation.run_ahead = {ps['run_ahead_depth']}, wall")
+        for bound, value in zip(("min", "max"), ps["run_ahead_ns_per_sample_range"]):
+            add("per_sample", f"run_ahead_ns_per_sample_{bound}", value, "ns", f"the {bound} of the plain runs")
         add("per_sample", "instrumented_ns_per_sample", ps["instrumented_ns_per_sample"], "ns",
             "one thread, every unit timed, wall")
         add("per_sample", "tester_ns_per_tested_sample", ps["tester_ns_per_tested_sample"], "ns",
