@@ -284,8 +284,9 @@ class TileTest:
                                    ops)
             events[EV_ACCEPT] -= cleared
             events[EV_REJ_EDGE] += cleared
-        res = {name: arr[keep] for name, arr in tiles.items()}
-        res.update({name: row[keep] for name, row in zip(INTERVALS, iv)})
-        res.update({name: arr[keep] for name, arr in ext_out.items()})
+        kept = np.flatnonzero(keep)  # (indexing a dozen arrays by it: a third of the time by the mask)
+        res = {name: arr[kept] for name, arr in tiles.items()}
+        res.update({name: row[kept] for name, row in zip(INTERVALS, iv)})
+        res.update({name: arr[kept] for name, arr in ext_out.items()})
         res["noread"] = np.zeros(len(res["tri"]), np.bool_)  # set by z-cull when it runs
         return res, ops, events

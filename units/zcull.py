@@ -434,8 +434,9 @@ class ZCull:
             out = dict(tiles)
             out["noread"] = noread
         else:
-            out = {name: arr[keep] for name, arr in tiles.items()}
-            out["noread"] = noread[keep]  # depth reads this tile's samples can skip
+            kept = np.flatnonzero(keep)  # (indexing a dozen arrays by it: a third of the time by the mask)
+            out = {name: arr[kept] for name, arr in tiles.items()}
+            out["noread"] = noread[kept]  # depth reads this tile's samples can skip
         return out, ops, events
 
     def query_answer(self, draw: int) -> dict[str, bool | int]:
