@@ -267,7 +267,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "results, run.json and a report",
                          description="Run the workload of FILE.toml (a scene, or any kind: docs/workloads.md) and "
                          "write into DIR, for each pass under passes/<pass>/: image.npy, image.exr (linear "
-                         "float RGBA), image.png (8-bit sRGB), counters.csv (one row per unit and counter), "
+                         "float, RGBA unless the pass gives its first target other channels), image.png (8-bit "
+                         "sRGB), counters.csv (one row per unit and counter), "
                          "timing.csv (busy/starved/blocked cycles per unit), queues.csv, trace.json; then "
                          "results.json (the workload's derived results), run.json (everything resolved: hardware, "
                          "every pass's state, the workload's content, versions, wall time) and "

@@ -63,13 +63,13 @@ BYTES = {
     # copies of the current region and of the next, made ahead (2 x 21 B),
     # the ROP's depth and colour, twice while one replaces the other
     # (2 x 20 B), and z-cull's box of the sample and its place among its
-    # pixel's samples grouped by box, for the current region and the next
-    # (2 x 3 B)
-    "region_sample": 3 * 21 + 2 * 21 + 2 * 20 + 2 * 3,
+    # pixel's samples grouped by box, for the ROP's region and two made ahead
+    # of it (3 x 3 B)
+    "region_sample": 3 * 21 + 2 * 21 + 2 * 20 + 3 * 3,
     # a pixel of a region and z-cull box: where the box's samples start among
-    # the pixel's, for the current region and the next (2 x int32), and the
-    # ROP's refresh state, the box's largest depth at the pixel and a flag
-    "region_pixel_box": 2 * 4 + 4 + 1,
+    # the pixel's, for the ROP's region and two made ahead (3 x int32), and
+    # the ROP's refresh state, the box's largest depth at the pixel and a flag
+    "region_pixel_box": 3 * 4 + 4 + 1,
     # a tile record out of the tile traverser (triangle, x, y: 3 x int32)
     "tile_record": 12,
     # a covered-sample record out of the sample tester (triangle, pixel,

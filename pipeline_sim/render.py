@@ -187,14 +187,14 @@ def run_pass(p: RenderPass, *, textures: dict[str, np.ndarray] | None = None,
     # the default scene's top one), and each next region's while the one before runs, with the sample
     # tester's layout of them and z-cull's grouping of them by box for the ROP's refreshes (a conservative
     # pass tests no samples; a set the tester asks for is laid out with it, on both cores, before the next
-    # one is started; one another unit asked for first is laid out by the tester on its first batch there,
-    # grouped by the ROP's first refresh there); the pattern's shared (u, v, t) tuples (Interleave UVT) and
-    # the check of a sample table come with a set of no rows
+    # one is started; one another unit asked for first is laid out by the tester on its first batch there;
+    # a set not made ahead is grouped by the ROP's refreshes, tile by tile); the pattern's shared (u, v, t)
+    # tuples (Interleave UVT) and the check of a sample table come with a set of no rows
     layouts = TileMajorLayouts(ts)
 
     def prepare(s, waited_for: bool = False):
-        layouts.prepare(s, waited_for)
-        return zcull.groups.prepare(s) if zcull.active else s
+        s = layouts.prepare(s, waited_for)
+        return zcull.groups.prepare(s) if zcull.active and not waited_for else s
 
     samples = RegionSamples(plan, made, prepare=None if conservative else prepare)
     tuples = made((0, 0)).tuples

@@ -522,31 +522,33 @@ def test_box_groups_match_a_stable_sort_by_box(nt, nl, spp, pattern):
 
 
 def test_box_groups_prepared_taken_and_their_buffers_reused(monkeypatch):
-    """``BoxGroups``: groups prepared ahead and groups made on ``take`` hold what a fresh unit makes; a
-    later region's groups are made in the buffers of those taken before (no longer read), and a region's
-    prepared groups are taken, not made again."""
+    """``BoxGroups``: groups prepared ahead are taken as prepared (grouped, not made again), a set not
+    prepared gets buffers for the refresh to fill (not grouped), in those of the groups taken before (no
+    longer read once a later region's are taken)."""
     w, h, spp = 6, 8, 16
     sets = [make_samples(w, h, spp, 5, lens=True, motion=True, rows=(r, r + 2)) for r in range(0, 8, 2)]
     groups = zc.BoxGroups(4, 2)
 
     def check(got, s):
-        for a, b in zip(got, zc.BoxGroups(4, 2).take(s)):
+        want = np.empty(len(s.t), np.uint8), np.empty(len(s.t), np.uint16), np.empty((w * 2, 17), np.int32)
+        zc.box_groups_kernel(spp, 4, 2, s.t, s.u, s.v, *want)
+        for a, b in zip(got, want):
             np.testing.assert_array_equal(a, b)
 
     groups.prepare(sets[0])
     groups.prepare(sets[1])
-    first = groups.take(sets[1])  # region 1 first, as prepared (region 0's, passed, are dropped)
-    check(first, sets[1])
-    again = groups.take(sets[2])  # not prepared: made now, where region 1's were
-    check(again, sets[2])
-    assert np.shares_memory(again[0], first[0]) and np.shares_memory(again[2], first[2])
-    groups.prepare(sets[3])
     calls = []
     with monkeypatch.context() as m:
         m.setattr(zc, "box_groups_kernel", lambda *a: calls.append(a))
-        last = groups.take(sets[3])
-    assert not calls  # taken as prepared
-    check(last, sets[3])
+        first = groups.take(sets[1])  # region 1 first, as prepared (region 0's, passed, are dropped)
+        again = groups.take(sets[2])  # not prepared
+    assert not calls and first[3] and not again[3]
+    check(first[:3], sets[1])
+    assert all(np.shares_memory(a, b) for a, b in zip(again[:3], first[:3]))
+    groups.prepare(sets[3])
+    last = groups.take(sets[3])
+    assert last[3] and not any(np.shares_memory(a, b) for a, b in zip(last[:3], again[:3]))
+    check(last[:3], sets[3])
 
 
 @pytest.mark.parametrize("func", [zc.CULL_LESS, zc.CULL_LEQUAL])

@@ -284,7 +284,7 @@ class TileTest:
                                    ops)
             events[EV_ACCEPT] -= cleared
             events[EV_REJ_EDGE] += cleared
-        kept = np.flatnonzero(keep)  # (indexing a dozen arrays by it: a third of the time by the mask)
+        kept = np.flatnonzero(keep)  # (indexing a dozen arrays by it: two fifths of the time by the mask)
         res = {name: arr[kept] for name, arr in tiles.items()}
         res.update({name: row[kept] for name, row in zip(INTERVALS, iv)})
         res.update({name: arr[kept] for name, arr in ext_out.items()})

@@ -170,36 +170,43 @@ def _box_max(depth, order, k0, k1):
     return top
 
 
+@nb.njit(cache=True, inline="always")
+def _group_pixel(p, spp, nt, nl, st, su, sv, box_of, order, start, cursor):
+    """Pixel ``p``'s samples' boxes and the pixel's samples grouped by box (see ``box_groups_kernel``);
+    ``cursor``: scratch of one entry per box. On the pixel's own arrays (loops from 0 vectorize)."""
+    nbox = start.shape[1] - 1
+    k0, k1 = p * spp, (p + 1) * spp
+    boxes, group, ends = box_of[k0:k1], order[k0:k1], start[p]
+    pt, pu, pv = st[k0:k1], su[k0:k1], sv[k0:k1]
+    for s in range(spp):
+        boxes[s] = _sample_box(pt[s], pu[s], pv[s], nt, nl)
+    ends[:] = 0
+    for s in range(spp):
+        ends[boxes[s] + 1] += 1
+    for b in range(nbox):
+        ends[b + 1] += ends[b]
+        cursor[b] = ends[b]
+    for s in range(spp):
+        b = boxes[s]
+        group[cursor[b]] = s
+        cursor[b] += 1
+
+
 @nb.njit(cache=True, nogil=True)
 def box_groups_kernel(spp, nt, nl, st, su, sv, box_of, order, start):
     """Each sample's z-cull box and each pixel's samples grouped by box, for the ROP's refresh of the
     boxes' zmax (Nilsson12 §3; ``refresh_kernel``): ``box_of[k]`` the box of sample k (its (t, u, v) in
     ``st``, ``su``, ``sv``), ``order[p * spp:(p + 1) * spp]`` pixel p's sample indices in box order (a
     stable counting sort, so in sample order within a box) and ``start[p, b] .. start[p, b + 1]`` box b's
-    run of them. Depends on the samples only."""
-    nbox = start.shape[1] - 1
-    cursor = np.empty(nbox, np.int32)
+    run of them, for every pixel. Depends on the samples only."""
+    cursor = np.empty(start.shape[1] - 1, np.int32)
     for p in range(start.shape[0]):
-        k0, k1 = p * spp, (p + 1) * spp
-        boxes, group, ends = box_of[k0:k1], order[k0:k1], start[p]  # the pixel's own (loops from 0 vectorize)
-        pt, pu, pv = st[k0:k1], su[k0:k1], sv[k0:k1]
-        for s in range(spp):
-            boxes[s] = _sample_box(pt[s], pu[s], pv[s], nt, nl)
-        ends[:] = 0
-        for s in range(spp):
-            ends[boxes[s] + 1] += 1
-        for b in range(nbox):
-            ends[b + 1] += ends[b]
-            cursor[b] = ends[b]
-        for s in range(spp):
-            b = boxes[s]
-            group[cursor[b]] = s
-            cursor[b] += 1
+        _group_pixel(p, spp, nt, nl, st, su, sv, box_of, order, start, cursor)
 
 
 @nb.njit(cache=True, nogil=True)
-def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, depth, zmax, exact, slot, box_of, order, start,
-                   pmax, dirty, work, scanned):
+def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, nt, nl, st, su, sv, depth, zmax, exact, slot,
+                   box_of, order, start, grouped, pmax, dirty, work, scanned):
     """Set zmax of every box of the tiles touched by ``pix`` to the largest depth of its samples
     (Nilsson12 §3: the ROP keeps z-cull's per-tile bounds up to date).
 
@@ -219,8 +226,9 @@ def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, depth, zmax
     argument per pixel keeps each pixel's largest depth per box (``pmax``,
     set at the tile's first refresh) exact by rereading only the (pixel, box)
     pairs a write may have lowered, through each sample's box ``box_of`` and
-    the pixel's samples grouped by box, ``order`` and ``start`` (made with the
-    samples, ``box_groups_kernel``)
+    the pixel's samples grouped by box, ``order`` and ``start``: made with the
+    samples (``box_groups_kernel``) when ``grouped``, else here, at the tile's
+    first refresh, from the samples' (t, u, v) ``st``, ``su``, ``sv``
     (``dirty``: all False between calls). A tile's zmax is the first largest
     of its pixels' maxima in row-major order, which is the first largest of
     its samples in the order a scan reads them: the same bits.
@@ -276,6 +284,7 @@ def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, depth, zmax
         base = p * spp
         pmax[p, b] = _box_max(depth[base:base + spp], order[base:base + spp], start[p, b], start[p, b + 1])
     height_px = depth.shape[0] // (width * spp)
+    cursor = np.empty(nbox, np.int32)
     n_scanned = 0
     for j in range(n_touched):
         tile = touched[j]
@@ -298,6 +307,8 @@ def refresh_kernel(pix, sidx, prior, width, spp, tile_size, tiles_x, depth, zmax
         for py in range(tyy * tile_size, min((tyy + 1) * tile_size, height_px)):
             for p in range(py * width + x0, py * width + x1):
                 if fresh:  # the pixel's first refresh: the largest depth of each of its boxes
+                    if not grouped:
+                        _group_pixel(p, spp, nt, nl, st, su, sv, box_of, order, start, cursor)
                     k0, k1 = p * spp, (p + 1) * spp
                     group, own, ends = order[k0:k1], depth[k0:k1], start[p]
                     for b in range(nbox):
@@ -317,9 +328,10 @@ class BoxGroups:
 
     They depend on the samples only, so ``prepare`` makes a set's on the thread that makes the set ahead
     (``pipeline_sim.regions.RegionSamples``, beside the sample tester's layout), and ``take`` hands the
-    refresh a set's groups (made then if they were not prepared); groups prepared for sets of earlier rows
-    (regions the pipeline has passed) are dropped, their buffers, like those of the groups taken before,
-    going to the next set's. Thread-safe.
+    refresh a set's groups, or, for a set not prepared, buffers for them that the refresh fills tile by
+    tile as it first reaches each (only the tiles written are grouped then). Groups prepared for sets of
+    earlier rows (regions the pipeline has passed) are dropped; the buffers of the groups taken before
+    serve the next set's, unless a set's are prepared already. Thread-safe.
     """
 
     def __init__(self, nt: int, nl: int):
@@ -333,36 +345,36 @@ class BoxGroups:
     def prepare(self, samples, waited_for: bool = False):
         """Make the groups of ``samples`` now, for a later ``take``; returns ``samples``. (``waited_for``:
         as ``TileMajorLayouts.prepare`` takes it; the groups are made on this thread either way.)"""
-        groups = self._make(samples)
+        box_of, order, start = self._buffers(samples)
+        box_groups_kernel(samples.spp, self.nt, self.nl, samples.t, samples.u, samples.v, box_of, order, start)
         with self._lock:
-            self._ready[id(samples)] = (samples, groups)
+            self._ready[id(samples)] = (samples, (box_of, order, start))
         return samples
 
-    def take(self, samples) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(box_of, order, start) of ``samples``: prepared, else made now."""
+    def take(self, samples) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+        """(box_of, order, start, grouped) for ``samples``: the groups prepared (``grouped`` True), else
+        buffers for them, to be filled by the refresh."""
         with self._lock:
             got = self._ready.pop(id(samples), None)
-            stale = [k for k, (s, _) in self._ready.items() if s.row0 < samples.row0]
-            for k in stale:
-                self._free = self._ready.pop(k)[1]
-            if self._taken is not None:
-                self._free = self._taken
+            for k in [k for k, (s, _) in self._ready.items() if s.row0 < samples.row0]:
+                self._ready.pop(k)
+            # what the groups taken before leave serves the next set's, unless that one is prepared already
+            self._free = None if self._ready else self._taken
             self._taken = None
-        groups = got[1] if got is not None else self._make(samples)
-        self._taken = groups
-        return groups
+        groups = got[1] if got is not None else self._buffers(samples)
+        with self._lock:
+            self._taken = groups
+        return groups + (got is not None,)
 
-    def _make(self, samples) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _buffers(self, samples) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         n, spp = len(samples.t), samples.spp
-        shape = (n // spp, self.nt * self.nl * self.nl + 1)
+        pixels = n // spp
         with self._lock:
             free, self._free = self._free, None
-        if free is not None and len(free[0]) >= n and len(free[2]) >= shape[0]:
-            box_of, order, start = free[0][:n], free[1][:n], free[2][:shape[0]]
-        else:
-            box_of, order, start = np.empty(n, np.uint8), np.empty(n, np.uint16), np.empty(shape, np.int32)
-        box_groups_kernel(spp, self.nt, self.nl, samples.t, samples.u, samples.v, box_of, order, start)
-        return box_of, order, start
+        if free is not None and len(free[0]) >= n and len(free[2]) >= pixels:
+            return free[0][:n], free[1][:n], free[2][:pixels]
+        return np.empty(n, np.uint8), np.empty(n, np.uint16), np.empty((pixels, self.nt * self.nl * self.nl + 1),
+                                                                         np.int32)
 
 
 class ZCull:
@@ -434,7 +446,7 @@ class ZCull:
             out = dict(tiles)
             out["noread"] = noread
         else:
-            kept = np.flatnonzero(keep)  # (indexing a dozen arrays by it: a third of the time by the mask)
+            kept = np.flatnonzero(keep)  # (indexing a dozen arrays by it: two fifths of the time by the mask)
             out = {name: arr[kept] for name, arr in tiles.items()}
             out["noread"] = noread[kept]  # depth reads this tile's samples can skip
         return out, ops, events
@@ -478,9 +490,10 @@ class ZCull:
             first = samples.row0 // self.tile_size * self.tiles_x
             local = pix - samples.row0 * self.width if samples.row0 else pix
             scanned = np.empty(min(len(pix), len(self.zmax) - first), np.int64)
-            n = refresh_kernel(local, sidx, prior, self.width, samples.spp, self.tile_size, self.tiles_x, depth,
-                               self.refreshed_zmax[first:], self.exact[first:], self.slot[first:], *self._grouped,
-                               self.pmax, self.dirty, work, scanned)
+            n = refresh_kernel(local, sidx, prior, self.width, samples.spp, self.tile_size, self.tiles_x, self.nt,
+                               self.nl, samples.t, samples.u, samples.v, depth, self.refreshed_zmax[first:],
+                               self.exact[first:], self.slot[first:], *self._grouped, self.pmax, self.dirty, work,
+                               scanned)
             tiles = scanned[:n] + first
         rows = self.refreshed_zmax[tiles]
         if publish:
