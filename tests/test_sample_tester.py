@@ -7,7 +7,7 @@ barycentrics with Cramer's rule in float64 — no 2DH edge functions.
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from reference import point_coverage, positions_at, render_static
@@ -363,7 +363,7 @@ def test_tester_keeps_every_sample_in_the_intervals_without_a_finite_bound(scale
     every sample in the intervals as a candidate, on the fused path and (with narrow lens intervals on every
     other record) the packed one, and the tester still covers exactly what the plain loop covers."""
     from pipeline_sim.sampling import make_samples
-    from units.sample_tester import K_5D, SampleTester, _f32_at_least, _f32_at_most, _tolerances
+    from units.sample_tester import K_5D, SampleTester, _f32_at_least, _f32_at_most, _tolerances, triangle_constants
 
     width, height, spp, ts = 24, 16, 8, 4
     rng = np.random.default_rng(11)
@@ -380,7 +380,7 @@ def test_tester_keeps_every_sample_in_the_intervals_without_a_finite_bound(scale
         tiles[hi] = np.where(narrow, mid + 0.1, tiles[hi])
     every = 0
     for i, tri in enumerate(tiles["tri"]):
-        c = _pass1_constants(table.p0_32[tri], table.dp_32[tri], table.l0_32[tri], table.dl_32[tri])
+        c = triangle_constants(table.p0_32, table.dp_32, table.l0_32, table.dl_32, tri)
         bounds = [f(tiles[k][i]) for k in ("t_lo", "t_hi", "u_lo", "u_hi", "v_lo", "v_hi")
                   for f in ((_f32_at_least,) if k.endswith("lo") else (_f32_at_most,))]
         x_max, y_max = (tiles["tx"][i] + 1) * ts + 1.0, (tiles["ty"][i] + 1) * ts + 1.0
@@ -534,84 +534,84 @@ def test_vertex_form_keeps_every_sample_beyond_float32_range(scale):
         assert np.all(np.isfinite(tol))
 
 
-def _pass1_constants(p0, dp, l0, dl):
-    """A triangle's float32 constants laid out as the kernel fills them for ``_keep`` (vertices, motion,
-    lens; the 2D edges are unused by the other kinds)."""
-    c = np.zeros(40, np.float32)
-    for k in range(3):
-        c[k], c[3 + k], c[6 + k] = p0[k, 0], p0[k, 1], p0[k, 3]
-        c[9 + k], c[12 + k], c[15 + k] = dp[k, 0], dp[k, 1], dp[k, 3]
-        c[18 + k], c[21 + k] = l0[k, 0], l0[k, 1]
-        c[24 + k], c[27 + k] = dl[k, 0], dl[k, 1]
-    return tuple(c)
+def _pass1_trial(rng, scale, kind, n=4096):
+    """One random moving (``K_5D``) or defocused (``K_XYUV``) triangle of either orientation, its vertices
+    behind the eye (W < 0) now and then, scaled by ``scale``, and ``n`` samples in a 40 x 30 tile, half of
+    them put on an edge (a point between two projected vertices, rounded to float32), where only the
+    tolerance keeps them. Asserts that ``_keep`` in vertex form (through ``_pass1_fused`` with
+    ``_tolerances``' bounds) keeps every sample ``inside_test`` accepts; returns how many it accepted, or
+    None when no finite pass-1 bound holds (the kernel then keeps every sample in the intervals)."""
+    from units.sample_tester import K_XYUV, K_5D, _pass1_fused, _tolerances, triangle_constants
+
+    f32 = np.float32
+    x_max, y_max = 40.0, 30.0
+    w = rng.uniform(0.5, 2.0, 3) * (np.where(rng.random(3) < 0.15, -1.0, 1.0))
+    p0 = np.zeros((3, 4), np.float32)
+    p0[:, 0] = rng.uniform(-5, x_max + 5, 3) * w
+    p0[:, 1] = rng.uniform(-5, y_max + 5, 3) * w
+    p0[:, 2] = rng.uniform(-0.5, 0.5, 3) * w
+    p0[:, 3] = w
+    dp = np.zeros((3, 4), np.float32)
+    dl = np.zeros((3, 4), np.float32)
+    if kind == K_5D:
+        dp[:, :2] = rng.uniform(-8, 8, (3, 2)) * w[:, None]
+        dp[:, 3] = rng.uniform(-0.1, 0.1, 3)
+        dl[:, :2] = rng.uniform(-1, 1, (3, 2))
+    l0 = np.zeros((3, 4), np.float32)
+    l0[:, :2] = rng.uniform(-6, 6, (3, 2))
+    P0, DP, L0, DL = (a[None] * f32(scale) for a in (p0, dp, l0, dl))
+    c = triangle_constants(P0, DP, L0, DL, 0)
+    ta, tb = (f32(0), f32(1)) if kind == K_XYUV else tuple(np.sort(rng.uniform(0, 1, 2)).astype(f32))
+    t = rng.uniform(ta, tb, n).astype(f32)
+    u = rng.uniform(-1, 1, n).astype(f32)
+    v = rng.uniform(-1, 1, n).astype(f32)
+    x = rng.uniform(0, x_max, n).astype(f32)
+    y = rng.uniform(0, y_max, n).astype(f32)
+    X, Y, W = _vertices(np.array(c, np.float32), t, u, v)
+    half = n // 2
+    i, j = rng.integers(0, 3, half), rng.integers(1, 3, half)
+    j = (i + j) % 3
+    a = rng.uniform(0, 1, half)
+    rows = np.arange(half)
+    Xs, Ys, Ws = np.array(X, np.float64), np.array(Y, np.float64), np.array(W, np.float64)
+    px = (1 - a) * Xs[i, rows] / Ws[i, rows] + a * Xs[j, rows] / Ws[j, rows]
+    py = (1 - a) * Ys[i, rows] / Ws[i, rows] + a * Ys[j, rows] / Ws[j, rows]
+    ok = (px >= 0) & (px <= x_max) & (py >= 0) & (py <= y_max)
+    x[:half][ok] = px[ok].astype(f32)
+    y[:half][ok] = py[ok].astype(f32)
+    eps = np.array([f32(1e-3) * f32(scale) ** 2], np.float32)
+    accepted = np.array([inside_test(P0, DP, L0, DL, 0, x[q], y[q], t[q], u[q], v[q], False, eps)[0]
+                         for q in range(n)])
+    *tol, every = _tolerances(c, ta, tb, f32(-1), f32(1), f32(-1), f32(1), x_max, y_max, eps[0], kind)
+    if every:
+        return None
+    cand = np.zeros(n + 64, np.uint8)
+    _pass1_fused(kind, n, 0, t, u, v, x, y, cand, ta, tb, f32(-1), f32(1), f32(-1), f32(1), c, *tol)
+    kept = cand[:n].astype(bool)
+    assert np.all(kept[accepted]), np.flatnonzero(accepted & ~kept)[:5]
+    return int(accepted.sum())
 
 
 @pytest.mark.parametrize("scale", [1e-12, 1e-3, 1.0, 1e6, 1e15, 1e17])
 def test_pass1_keeps_every_sample_the_exact_test_accepts(scale):
-    """``_keep`` in vertex form (through ``_pass1_fused`` with ``_tolerances``' bounds) keeps every sample
-    ``inside_test`` accepts: random moving, defocused triangles of either orientation, some with
-    vertices behind the eye (W < 0), at scales from 1e-12 to 1e17, with half the samples put on an edge
-    (a point between two projected vertices, rounded to float32), where only the tolerance keeps them."""
-    from units.sample_tester import K_XYUV, K_5D, _pass1_fused, _tolerances
+    """``_pass1_trial`` on 40 triangles a scale, from 1e-12 to 1e17 (a quarter of them defocused only)."""
+    from units.sample_tester import K_XYUV, K_5D
 
     rng = np.random.default_rng(int(np.log10(scale)) + 40)
-    f32 = np.float32
-    n = 4096
-    x_max, y_max = 40.0, 30.0
-    accepted_total = 0
-    tested = 0
-    for trial in range(40):
-        kind = K_XYUV if trial % 4 == 0 else K_5D
-        w = rng.uniform(0.5, 2.0, 3) * (np.where(rng.random(3) < 0.15, -1.0, 1.0))
-        p0 = np.zeros((3, 4), np.float32)
-        p0[:, 0] = rng.uniform(-5, x_max + 5, 3) * w
-        p0[:, 1] = rng.uniform(-5, y_max + 5, 3) * w
-        p0[:, 2] = rng.uniform(-0.5, 0.5, 3) * w
-        p0[:, 3] = w
-        dp = np.zeros((3, 4), np.float32)
-        dl = np.zeros((3, 4), np.float32)
-        if kind == K_5D:
-            dp[:, :2] = rng.uniform(-8, 8, (3, 2)) * w[:, None]
-            dp[:, 3] = rng.uniform(-0.1, 0.1, 3)
-            dl[:, :2] = rng.uniform(-1, 1, (3, 2))
-        l0 = np.zeros((3, 4), np.float32)
-        l0[:, :2] = rng.uniform(-6, 6, (3, 2))
-        p0, dp, l0, dl = (a * f32(scale) for a in (p0, dp, l0, dl))
-        c = _pass1_constants(p0, dp, l0, dl)
-        ta, tb = (f32(0), f32(1)) if kind == K_XYUV else tuple(np.sort(rng.uniform(0, 1, 2)).astype(f32))
-        t = rng.uniform(ta, tb, n).astype(f32)
-        u = rng.uniform(-1, 1, n).astype(f32)
-        v = rng.uniform(-1, 1, n).astype(f32)
-        x = rng.uniform(0, x_max, n).astype(f32)
-        y = rng.uniform(0, y_max, n).astype(f32)
-        X, Y, W = _vertices(np.array(c, np.float32), t, u, v)
-        half = n // 2
-        i, j = rng.integers(0, 3, half), rng.integers(1, 3, half)
-        j = (i + j) % 3
-        a = rng.uniform(0, 1, half)
-        rows = np.arange(half)
-        Xs, Ys, Ws = np.array(X, np.float64), np.array(Y, np.float64), np.array(W, np.float64)
-        px = (1 - a) * Xs[i, rows] / Ws[i, rows] + a * Xs[j, rows] / Ws[j, rows]
-        py = (1 - a) * Ys[i, rows] / Ws[i, rows] + a * Ys[j, rows] / Ws[j, rows]
-        ok = (px >= 0) & (px <= x_max) & (py >= 0) & (py <= y_max)
-        x[:half][ok] = px[ok].astype(f32)
-        y[:half][ok] = py[ok].astype(f32)
-        tri = 0
-        P0, DP, L0, DL = (a_[None] for a_ in (p0, dp, l0, dl))
-        eps = np.array([f32(1e-3) * f32(scale) ** 2], np.float32)
-        accepted = np.array([inside_test(P0, DP, L0, DL, tri, x[q], y[q], t[q], u[q], v[q], False, eps)[0]
-                             for q in range(n)])
-        *tol, every = _tolerances(c, ta, tb, f32(-1), f32(1), f32(-1), f32(1), x_max, y_max, eps[0], kind)
-        if every:  # no finite bound: the kernel takes every sample in the intervals without pass 1
-            continue
-        cand = np.zeros(n + 64, np.uint8)
-        _pass1_fused(kind, n, 0, t, u, v, x, y, cand, ta, tb, f32(-1), f32(1), f32(-1), f32(1), c, *tol)
-        kept = cand[:n].astype(bool)
-        assert np.all(kept[accepted]), (trial, np.flatnonzero(accepted & ~kept)[:5])
-        tested += 1
-        accepted_total += int(accepted.sum())
-    assert accepted_total > 1000  # the triangles cover something
-    assert tested >= 20  # and most take pass 1
+    counts = [_pass1_trial(rng, scale, K_XYUV if trial % 4 == 0 else K_5D) for trial in range(40)]
+    tested = [k for k in counts if k is not None]
+    assert sum(tested) > 1000  # the triangles cover something
+    assert len(tested) >= 20  # and most take pass 1
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(-12, 17), st.booleans())
+def test_pass1_never_drops_an_accepted_sample(seed, exponent, defocus_only):
+    """The same property as a hypothesis search: any seed, any power of ten from 1e-12 to 1e17, moving
+    and defocused or defocused only (1,024 samples a triangle)."""
+    from units.sample_tester import K_XYUV, K_5D
+
+    _pass1_trial(np.random.default_rng(seed), 10.0**exponent, K_XYUV if defocus_only else K_5D, n=1024)
 
 
 def _edges_np(X, Y, W, x, y):

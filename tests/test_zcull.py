@@ -513,12 +513,21 @@ def test_box_groups_match_a_stable_sort_by_box(nt, nl, spp, pattern):
     box_of, order = np.empty(n, np.uint8), np.empty(n, np.uint16)
     start = np.empty((npix, nbox + 1), np.int32)
     zc.box_groups_kernel(spp, nt, nl, samples.t, samples.u, samples.v, box_of, order, start)
-    expect = np.array([brute_box(samples, k, nt, nl) for k in range(n)])
-    np.testing.assert_array_equal(box_of, expect)
-    per_pixel = expect.reshape(npix, spp)
-    np.testing.assert_array_equal(order.reshape(npix, spp), np.argsort(per_pixel, axis=1, kind="stable"))
+    for got, want in zip((box_of, order, start), numpy_box_groups(samples, nt, nl)):
+        np.testing.assert_array_equal(got, want)
+
+
+def numpy_box_groups(samples, nt, nl):
+    """(box_of, order, start) as ``box_groups_kernel`` lays them out, from ``brute_box`` and numpy's stable
+    sort."""
+    spp = samples.spp
+    n, nbox = len(samples.t), nt * nl * nl
+    box_of = np.array([brute_box(samples, k, nt, nl) for k in range(n)])
+    per_pixel = box_of.reshape(-1, spp)
+    order = np.argsort(per_pixel, axis=1, kind="stable").reshape(-1)
     counts = np.stack([np.bincount(b, minlength=nbox) for b in per_pixel])
-    np.testing.assert_array_equal(start, np.concatenate([np.zeros((npix, 1), int), counts.cumsum(axis=1)], axis=1))
+    start = np.concatenate([np.zeros((len(per_pixel), 1), int), counts.cumsum(axis=1)], axis=1)
+    return box_of, order, start
 
 
 def test_box_groups_prepared_taken_and_their_buffers_reused(monkeypatch):
@@ -530,9 +539,7 @@ def test_box_groups_prepared_taken_and_their_buffers_reused(monkeypatch):
     groups = zc.BoxGroups(4, 2)
 
     def check(got, s):
-        want = np.empty(len(s.t), np.uint8), np.empty(len(s.t), np.uint16), np.empty((w * 2, 17), np.int32)
-        zc.box_groups_kernel(spp, 4, 2, s.t, s.u, s.v, *want)
-        for a, b in zip(got, want):
+        for a, b in zip(got, numpy_box_groups(s, 4, 2)):
             np.testing.assert_array_equal(a, b)
 
     groups.prepare(sets[0])

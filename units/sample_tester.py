@@ -605,6 +605,38 @@ def _intervals_extra_fn(n, k0, st, su, sv, stup, tup_mask, msk, ta, tb, ua, ub, 
     return _intervals_extra(n, k0, st, su, sv, stup, tup_mask, msk, ta, tb, ua, ub, va, vb, ln, mk)
 
 
+@nb.njit(cache=True, inline="always")
+def _triangle_constants(p0, dp, l0, dl, tri, tc):
+    """Triangle ``tri``'s float32 constants into ``tc`` (46 entries), laid out as ``_keep`` reads them: X,
+    Y, W of the vertices at t = 0 (0-8), their motion (9-17), the lens shifts of X and Y and their motion
+    (18-29), the shutter-open 2D edges a, b, c (30-38) with D's sign (39), Z and its motion (40-45)."""
+    for k in range(3):
+        tc[k] = p0[tri, k, 0]
+        tc[3 + k] = p0[tri, k, 1]
+        tc[6 + k] = p0[tri, k, 3]
+        tc[9 + k] = dp[tri, k, 0]
+        tc[12 + k] = dp[tri, k, 1]
+        tc[15 + k] = dp[tri, k, 3]
+        tc[18 + k] = l0[tri, k, 0]
+        tc[21 + k] = l0[tri, k, 1]
+        tc[24 + k] = dl[tri, k, 0]
+        tc[27 + k] = dl[tri, k, 1]
+        tc[40 + k] = p0[tri, k, 2]
+        tc[43 + k] = dp[tri, k, 2]
+    # 2D path: vertices and edges once per tile (t, u, v do not matter)
+    a0, b0, c0, a1, b1, c1, a2, b2, c2, D = _edges(tc[0], tc[3], tc[6], tc[1], tc[4], tc[7], tc[2], tc[5], tc[8])
+    tc[30], tc[31], tc[32], tc[33], tc[34], tc[35], tc[36], tc[37], tc[38] = a0, b0, c0, a1, b1, c1, a2, b2, c2
+    tc[39] = np.float32(1.0) if D > 0 else np.float32(-1.0)
+
+
+@nb.njit(cache=True)
+def triangle_constants(p0, dp, l0, dl, tri):
+    """``_triangle_constants`` of triangle ``tri`` as a tuple of 40 (``_keep``'s ``c``; for tests)."""
+    tc = np.zeros(46, np.float32)
+    _triangle_constants(p0, dp, l0, dl, tri, tc)
+    return _constants(tc)
+
+
 @nb.njit(cache=True)
 def _constants(tc):
     """The triangle's float32 constants as a tuple (layout: see ``_keep``)."""
@@ -795,7 +827,6 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
     in_range = 0
     pixels = 0
     searches = 0
-    one = np.float32(1.0)
     nan = np.float32(np.nan)
     inf = np.float32(np.inf)
     zero = np.float32(0.0)
@@ -889,19 +920,7 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
         if tri != prev:
             # the triangle's constants; consecutive records usually share a triangle
             prev = tri
-            for k_ in range(3):
-                tc[k_] = p0[tri, k_, 0]
-                tc[3 + k_] = p0[tri, k_, 1]
-                tc[6 + k_] = p0[tri, k_, 3]
-                tc[9 + k_] = dp[tri, k_, 0]
-                tc[12 + k_] = dp[tri, k_, 1]
-                tc[15 + k_] = dp[tri, k_, 3]
-                tc[18 + k_] = l0[tri, k_, 0]
-                tc[21 + k_] = l0[tri, k_, 1]
-                tc[24 + k_] = dl[tri, k_, 0]
-                tc[27 + k_] = dl[tri, k_, 1]
-                tc[40 + k_] = p0[tri, k_, 2]
-                tc[43 + k_] = dp[tri, k_, 2]
+            _triangle_constants(p0, dp, l0, dl, tri, tc)
             moving = False
             for k_ in range(9, 18):
                 moving = moving or tc[k_] != 0
@@ -915,12 +934,6 @@ def sample_test_kernel(tri_ids, tile_x, tile_y, t_lo, t_hi, u_lo, u_hi, v_lo, v_
             # the dimensions this triangle uses: 0 = 2D, 1 = xyt, 2 = xyuv, 3 = xyuvt
             dims = (1 if moving else 0) + (2 if lens else 0)
             kind = dims if specialize and (dims == K_2D or dims == K_XYUV) else K_5D
-            # 2D path: vertices and edges once per tile (t, u, v do not matter)
-            sa0, sb0, sc0, sa1, sb1, sc1, sa2, sb2, sc2, sD = _edges(tc[0], tc[3], tc[6], tc[1], tc[4], tc[7],
-                                                                     tc[2], tc[5], tc[8])
-            tc[30], tc[31], tc[32], tc[33], tc[34], tc[35], tc[36], tc[37], tc[38] = (sa0, sb0, sc0, sa1, sb1, sc1,
-                                                                                      sa2, sb2, sc2)
-            tc[39] = one if sD > 0 else -one
             static = kind == K_2D and _static_exact(p0, dp, l0, dl, tri)
             c = _constants(tc)
             z3 = (tc[40], tc[41], tc[42], tc[43], tc[44], tc[45])
