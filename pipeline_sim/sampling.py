@@ -72,6 +72,8 @@ __all__ = [
     "map_lens",
     "net5_columns",
     "net_integer_coords",
+    "sobol_direction_numbers",
+    "sobol_points",
     "square_lens",
     "t_ordered_net",
     "t_ordered_net5",
@@ -685,8 +687,8 @@ def net5_columns(m: int) -> np.ndarray:
 
     Column l of a row holds the m digits (top bit = weight 1/2) that bit l of
     the point index j contributes: x, y, u, v are Sobol dimensions 1-4
-    (scipy's direction numbers; its unscrambled points come in Gray-code order,
-    so point 2^(l+1) - 1 is column l) and t's column l is 2^l, so t = j / 2^m.
+    (:func:`sobol_points`, whose points come in Gray-code order, so point
+    2^(l+1) - 1 is column l) and t's column l is 2^l, so t = j / 2^m.
     """
     _check_m(m, 16)
     pts = sobol_points(m)[:4]
@@ -710,13 +712,45 @@ def t_ordered_net5(m: int) -> np.ndarray:
     return ints.astype(np.float64) / (1 << m)
 
 
+# Sobol dimensions 2-5 (dimension 1 has every m_k = 1): the degree s of the primitive polynomial, its
+# inner coefficients a (bits a_1 .. a_(s-1), a_1 the highest) and the initial odd m_1 .. m_s, from Joe and
+# Kuo's direction numbers (new-joe-kuo-6.21201), which scipy.stats.qmc.Sobol uses too
+_SOBOL_POLYNOMIALS = ((1, 0, (1,)), (2, 1, (1, 3)), (3, 1, (1, 3, 1)), (3, 2, (1, 1, 1)))
+
+
+def sobol_direction_numbers(m: int) -> np.ndarray:
+    """(5, m) direction numbers of the first five Sobol dimensions as m-digit integers: column k - 1 is
+    v_k = m_k 2^(m - k), k = 1 .. m, with m_k from Bratley and Fox's recurrence (1988)
+    m_k = 2 a_1 m_(k-1) ^ 4 a_2 m_(k-2) ^ ... ^ 2^(s-1) a_(s-1) m_(k-s+1) ^ 2^s m_(k-s) ^ m_(k-s)."""
+    _check_m(m)
+    v = np.empty((5, m), dtype=np.int64)
+    v[0] = [1 << (m - 1 - j) for j in range(m)]
+    for d, (s, a, initial) in enumerate(_SOBOL_POLYNOMIALS, start=1):
+        mk = list(initial[:m])  # mk[j] = m_(j+1)
+        for j in range(s, m):
+            value = mk[j - s] ^ (mk[j - s] << s)
+            for i in range(1, s):
+                if (a >> (s - 1 - i)) & 1:
+                    value ^= mk[j - i] << i
+            mk.append(value)
+        v[d] = [mk[j] << (m - 1 - j) for j in range(m)]
+    return v
+
+
 def sobol_points(m: int) -> np.ndarray:
     """(5, 2^m) integer coordinates (m digits) of the first 2^m points of the
-    unscrambled 5D Sobol sequence (scipy.stats.qmc), dimensions x, y, t, a, b."""
-    from scipy.stats import qmc
-
-    pts = qmc.Sobol(d=5, scramble=False).random_base2(m)
-    return np.round(pts.T * (1 << m)).astype(np.int64)
+    unscrambled 5D Sobol sequence, dimensions x, y, t, a, b, in Gray-code order
+    (point k is the XOR of the direction numbers at the set bits of k ^ (k >> 1)),
+    as scipy.stats.qmc.Sobol gives them (``tests/test_sampling.py``). Made here
+    rather than by scipy, whose ``stats`` package takes 0.6 s to import: every run
+    that samples with ``net5`` or ``sobol`` would pay that before its first pass."""
+    v = sobol_direction_numbers(m)
+    k = np.arange(1 << m, dtype=np.int64)
+    gray = k ^ (k >> 1)
+    pts = np.zeros((5, 1 << m), dtype=np.int64)
+    for j in range(m):
+        pts ^= ((gray >> j) & 1)[None, :] * v[:, j:j + 1]
+    return pts
 
 
 _BELOW_ONE = float(np.nextafter(np.float32(1.0), np.float32(0.0)))

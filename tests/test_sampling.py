@@ -32,6 +32,8 @@ from pipeline_sim.sampling import (
     grunschloss_keller_matrices,
     make_samples,
     map_lens,
+    sobol_direction_numbers,
+    sobol_points,
     t_ordered_net,
     t_ordered_net5,
 )
@@ -647,6 +649,24 @@ def test_net5_t_value_is_tight_and_beats_the_padded_net(m):
         assert not is_tnet(net, m, NET5_T[m] - 1)
     old = make_samples(4, 2, 1 << m, 19, lens=True, motion=True, pattern="net", lens_shape="square")
     assert not any(is_tnet(pixel_ints(old, p, m), m, NET5_T[m]) for p in range(old.npix))
+
+
+@pytest.mark.parametrize("m", [0, 1, 2, 3, 4, 7, 12, 16])
+def test_sobol_points_are_scipys(m):
+    """The 5D Sobol points made here (no scipy at run time) against scipy's unscrambled ones, same order."""
+    ref = qmc.Sobol(d=5, scramble=False).random_base2(m) * 2**m
+    assert np.array_equal(ref, np.round(ref))  # the first 2^m points have m digits
+    assert np.array_equal(sobol_points(m), ref.T.astype(np.int64))
+
+
+def test_sobol_direction_numbers_are_odd_and_in_range():
+    """m_k is odd and below 2^k (so v_k has its lowest set digit at k), for every dimension."""
+    m = 16
+    v = sobol_direction_numbers(m)
+    for j in range(m):
+        mk = v[:, j] >> (m - 1 - j)
+        assert np.all(mk % 2 == 1) and np.all(mk < 2 ** (j + 1))
+        assert np.all(v[:, j] & ((1 << (m - 1 - j)) - 1) == 0)
 
 
 @pytest.mark.parametrize("m", [0, 1, 5, 9])
