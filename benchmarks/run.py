@@ -131,7 +131,11 @@ unless said otherwise:
 12. ("per_sample" section) Cost per sample: the default scene at 256 spp,
    in nanoseconds per sample end to end, with the tile test, the sample
    tester, shading and the ROP on run-ahead threads (as shipped,
-   ``simulation.run_ahead = 2``) and on one thread, timed alternately; then instrumented
+   ``simulation.run_ahead = 2``) and on one thread, timed alternately, with
+   the machine's speed measured after each round (a bare 5D inside test's
+   nanoseconds and a memory copy's bandwidth; the pass is also given in bare
+   tests a sample, a figure less at the mercy of the machine's state than
+   nanoseconds); then instrumented
    as in 2 (on one thread), per part
    (tile test, z-cull, tester, shading, ROP, the z-cull refresh, sample
    generation: in wall time the main thread's waits for a region's samples,
@@ -460,6 +464,25 @@ def simulation_thread(runs: list[tuple[float, dict]]) -> dict:
     return {"cpu_s": float(np.median([c for c, _ in runs])) if runs else None, "units": units}
 
 
+def machine_reference() -> tuple[float, float]:
+    """The machine's speed now, to read a run's times by: nanoseconds of one bare float32 5D inside test
+    (``benchmarks.microkernel``, one core, 16 million tests, median of three) and the bandwidth of a
+    64 MB copy (GB/s, bytes read plus written, median of three; the arrays are four times the L3 of the
+    machines this runs on, so it measures memory)."""
+    from benchmarks.microkernel import measure
+
+    bare_ns = 1e9 / measure(1 << 24, repeats=3)["tests_per_s"]
+    src = np.ones(1 << 23)
+    dst = np.empty_like(src)
+    np.copyto(dst, src)  # first touch
+    times = []
+    for _ in range(3):
+        t0 = time.perf_counter()
+        np.copyto(dst, src)
+        times.append(time.perf_counter() - t0)
+    return bare_ns, 2 * src.nbytes / float(np.median(times)) / 1e9
+
+
 def bench_per_sample(cfg: dict) -> dict:
     """Nanoseconds per sample end to end on the default scene at ``cfg["per_sample"]["spp"]``, split by part
     (issue 19's cost per sample), and the tester's nanoseconds per tested sample including its outputs."""
@@ -488,12 +511,14 @@ def bench_per_sample(cfg: dict) -> dict:
     variants = {"one_thread": 0, "run_ahead": depth}
     log(f"per sample: {cfg['per_sample']['plain']} plain runs each, one thread and run-ahead, alternately")
     plain: dict[str, list] = {key: [] for key in variants}
+    machine = []  # per round, after its passes: (ns of a bare 5D test, GB/s of a memory copy)
     for _ in range(cfg["per_sample"]["plain"]):
         for key, value in variants.items():
             q = dataclasses.replace(p, simulation=p.simulation.replace(run_ahead=value))
             c0 = _clocks()
             run_pass(q)
             plain[key].append(_since(c0))
+        machine.append(machine_reference())
     # then as shipped with the simulation's thread timed (instrument.simulation_waits): its CPU over the pass
     # and, per unit with run-ahead, its waits for the unit's steps and the steps it ran itself
     waits = []
@@ -512,7 +537,12 @@ def bench_per_sample(cfg: dict) -> dict:
         out[f"{key}_ns_per_sample"] = 1e9 * out[f"{key}_s"] / samples
         out[f"{key}_ns_per_sample_range"] = [1e9 * f([w for w, _ in times]) / samples for f in (min, max)]
     out["run_ahead_depth"] = depth
+    out["bare_test_ns"] = [b for b, _ in machine]
+    out["copy_gb_per_s"] = [c for _, c in machine]
     out["ns_per_sample"] = out["run_ahead_ns_per_sample"]
+    # the pass in units of the machine's own bare test, measured in the same rounds: a figure that moves
+    # less than nanoseconds with the speed the machine happens to have
+    out["bare_tests_per_sample"] = out["ns_per_sample"] / float(np.median(out["bare_test_ns"]))
     out["ns_per_sample_cpu"] = 1e9 * out["run_ahead_cpu_s"] / samples
     for u in out["units"]:
         u["ns_per_sample"] = 1e9 * u["seconds"] / samples
@@ -824,6 +854,11 @@ def report(results: dict) -> tuple[str, list[dict]]:
                    f"{ps['run_ahead_ns_per_sample_range'][0]:.1f} to {ps['run_ahead_ns_per_sample_range'][1]:.1f} ns, "
                    f"on one thread {ps['one_thread_ns_per_sample_range'][0]:.1f} to "
                    f"{ps['one_thread_ns_per_sample_range'][1]:.1f} ns)")
+        bare, copy = ps["bare_test_ns"], ps["copy_gb_per_s"]
+        out.append(f"   the machine meanwhile, measured after each round of plain runs: a bare float32 5D inside test "
+                   f"{np.median(bare):.2f} ns ({min(bare):.2f} to {max(bare):.2f}; benchmarks/microkernel.py, one "
+                   f"core), a 64 MB copy {np.median(copy):.1f} GB/s ({min(copy):.1f} to {max(copy):.1f}); as shipped "
+                   f"the pass costs {ps['bare_tests_per_sample']:.0f} bare tests a sample")
         out.append(f"   where the work goes, one thread, median of {results['config']['instrumented']} instrumented "
                    f"runs: {ps['instrumented_ns_per_sample']:.1f} ns a sample wall "
                    f"({ps['instrumented_ns_per_sample_cpu']:.1f} CPU); the tester "
@@ -849,6 +884,12 @@ def report(results: dict) -> tuple[str, list[dict]]:
             f"simulation.run_ahead = {ps['run_ahead_depth']}, wall")
         for bound, value in zip(("min", "max"), ps["run_ahead_ns_per_sample_range"]):
             add("per_sample", f"run_ahead_ns_per_sample_{bound}", value, "ns", f"the {bound} of the plain runs")
+        add("per_sample", "bare_test_ns", float(np.median(ps["bare_test_ns"])), "ns",
+            "one bare float32 5D inside test, one core, median over the rounds of plain runs")
+        add("per_sample", "copy_gb_per_s", float(np.median(ps["copy_gb_per_s"])), "GB/s",
+            "a 64 MB memory copy, read plus written, median over the rounds")
+        add("per_sample", "bare_tests_per_sample", ps["bare_tests_per_sample"], "",
+            "ns_per_sample over bare_test_ns, measured in the same rounds")
         add("per_sample", "instrumented_ns_per_sample", ps["instrumented_ns_per_sample"], "ns",
             "one thread, every unit timed, wall")
         add("per_sample", "tester_ns_per_tested_sample", ps["tester_ns_per_tested_sample"], "ns",
