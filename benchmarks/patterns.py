@@ -71,7 +71,7 @@ def net_columns(pattern: str, m: int) -> np.ndarray:
     """(5, m) generator columns in the order (x, y, u, v, t) of ``net5`` or ``sobol``."""
     if pattern == "net5":
         return net5_columns(m)
-    pts = sobol_points(m)  # dimensions x, y, t, a, b; scipy's Gray-code order: point 2^(l+1) - 1 is column l
+    pts = sobol_points(m)  # dimensions x, y, t, a, b; Gray-code order: point 2^(l+1) - 1 is column l
     return np.stack([pts[[0, 1, 3, 4, 2], (1 << (l + 1)) - 1] for l in range(m)], axis=1)
 
 

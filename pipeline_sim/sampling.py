@@ -554,8 +554,7 @@ def _stratified_kernel(p0, lo, hi, spp, seed_key, lens, motion, square, ox, oy, 
 
 @numba.njit(**_JIT)
 def _sobol_kernel(p0, lo, hi, spp, m, seed_key, base_pts, lens, motion, square, ox, oy, ou, ov, ot):
-    """The first 2^m points of the 5D Sobol sequence (scipy's direction
-    numbers) with a per-pixel random digital shift (XOR of the top m digits)
+    """The first 2^m points of the 5D Sobol sequence (:func:`sobol_points`) with a per-pixel random digital shift (XOR of the top m digits)
     in each dimension and a jitter inside the finest stratum; sorted by t.
     ``base_pts`` holds the points' m-digit integer coordinates (x, y, t, a, b)."""
     nb = _FRAC_BITS
@@ -742,7 +741,7 @@ def sobol_points(m: int) -> np.ndarray:
     unscrambled 5D Sobol sequence, dimensions x, y, t, a, b, in Gray-code order
     (point k is the XOR of the direction numbers at the set bits of k ^ (k >> 1)),
     as scipy.stats.qmc.Sobol gives them (``tests/test_sampling.py``). Made here
-    rather than by scipy, whose ``stats`` package takes 0.6 s to import: every run
+    rather than by scipy, whose ``stats`` package takes 0.5 to 0.6 s to import: every run
     that samples with ``net5`` or ``sobol`` would pay that before its first pass."""
     v = sobol_direction_numbers(m)
     k = np.arange(1 << m, dtype=np.int64)
