@@ -278,6 +278,19 @@ def deliver_colors(sample_src, palette, color):
 
 
 @nb.njit(cache=True, nogil=True)
+def request_points(first, pix, z, width, x, y, depth):
+    """Each shading request's pixel centre and depth, those of the sample that made it (``first[r]``,
+    whose pixel ``pix`` counts ``width`` to a row): one loop instead of a fancy index, a divmod and
+    two conversions in numpy, each a call of its own for a batch of a few hundred requests."""
+    for r in range(first.shape[0]):
+        i = first[r]
+        p = pix[i]
+        x[r] = np.float32(p % width + 0.5)
+        y[r] = np.float32(p // width + 0.5)
+        depth[r] = z[i]
+
+
+@nb.njit(cache=True, nogil=True)
 def interpolate_kernel(req_tri, req_l, req_t, req_u, req_v, req_x, req_y, req_depth,
                        pos, nrm, color, material, object_id, inputs, ops):
     """Perspective-correct attribute interpolation for shading requests (Munkberg11 §8 'interpolation setup')."""
@@ -363,6 +376,7 @@ class Shading:
         self.entry_color = np.zeros((nsets * ways, channels), np.float32)
         self.clock = 0
         self.scratch = cache_scratch(0)  # the cache kernel's, grown to the largest batch
+        self.view = np.zeros((3, 0), np.float32)  # the shading view's (t, u, v) per request, grown likewise
 
     def use_samples(self, samples) -> None:
         """Shade the next batches with ``samples`` (their screen region's; conservative mode reads none)."""
@@ -390,14 +404,15 @@ class Shading:
                 self.tags, self.stamps, self.entry_req, self.clock,
                 REPL_LRU if self.config.replacement == "lru" else REPL_FIFO, keys, sample_src, req_entry,
                 req_tri, req_l, req_sample, ops, events)
-            first = req_sample[:nreq]
-            py, px = np.divmod(batch["pix"][first], s.width)
-            view_u, view_v, view_t = (np.full(nreq, c, np.float32) for c in self.shading_view)
+            if self.view.shape[1] < nreq:
+                u, v, t = self.shading_view
+                self.view = np.repeat(np.array([[t], [u], [v]], np.float32), max(nreq, 2 * self.view.shape[1]),
+                                      axis=1)
+            x, y, depth = (np.empty(nreq, np.float32) for _ in range(3))
+            request_points(req_sample[:nreq], batch["pix"], batch["z"], s.width, x, y, depth)
             inputs = np.zeros((N_INPUTS, nreq), np.float32)
-            interpolate_kernel(req_tri[:nreq], req_l[:, :nreq], view_t, view_u, view_v,
-                               (px + 0.5).astype(np.float32), (py + 0.5).astype(np.float32),
-                               batch["z"][first], self.draw.pos, self.draw.nrm, self.draw.color,
-                               self.draw.material, self.draw.object_id, inputs, ops)
+            interpolate_kernel(req_tri[:nreq], req_l[:, :nreq], *self.view[:, :nreq], x, y, depth, self.draw.pos,
+                               self.draw.nrm, self.draw.color, self.draw.material, self.draw.object_id, inputs, ops)
             inputs[IN_SAMPLE:IN_TUPLE + 1] = -1  # a shading point of the reference camera is no sample
             shaded = self._shade(inputs)
             color = np.empty((n, self.channels), np.float32)
