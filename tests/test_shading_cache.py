@@ -27,7 +27,7 @@ from pipeline_sim.pass_state import PassState
 from pipeline_sim.shaders import (IN_B, IN_G, IN_PX, IN_PY, IN_R, IN_T, IN_TRIANGLE, IN_U, IN_V, IN_X, IN_Y,
                                   N_INPUTS, standard_shader)
 from units.shading_cache import (EVENTS, REPL_FIFO, REPL_LRU, Shading, cache_kernel, cache_scratch, cell_keys,
-                                 deliver_colors, run_end, store_requests)
+                                 deliver_colors, request_points, run_end, store_requests)
 
 EV = {name: i for i, name in enumerate(EVENTS)}
 
@@ -765,3 +765,17 @@ def test_a_pass_of_more_triangles_than_a_cache_key_holds_is_refused_in_one_line(
     with pytest.raises(UserError, match="keys at most 1 triangles and the pass draws 2.*per_sample"):
         run_pass(RenderPass(draw=draw, arch=load_arch(), spp=1))
     assert run_pass(RenderPass(draw=draw, arch=load_arch(), spp=1, state=PassState(shading_mode="per_sample")))
+
+
+@given(st.integers(1, 5000), st.lists(st.integers(0, 10**6), min_size=1, max_size=40), st.randoms(use_true_random=False))
+def test_request_points_are_numpys_pixel_centres(width, pix_list, rnd):
+    """Each request's pixel centre and depth, against numpy's divmod of the first samples' pixels."""
+    pix = np.array(pix_list, np.int32)
+    z = np.array([rnd.uniform(-1, 1) for _ in pix_list], np.float32)
+    first = np.array([rnd.randrange(len(pix_list)) for _ in range(rnd.randrange(1, 20))], np.int32)
+    x, y, depth = (np.empty(len(first), np.float32) for _ in range(3))
+    request_points(first, pix, z, width, x, y, depth)
+    py, px = np.divmod(pix[first], width)
+    np.testing.assert_array_equal(x, (px + 0.5).astype(np.float32))
+    np.testing.assert_array_equal(y, (py + 0.5).astype(np.float32))
+    np.testing.assert_array_equal(depth, z[first])
