@@ -554,8 +554,8 @@ def _stratified_kernel(p0, lo, hi, spp, seed_key, lens, motion, square, ox, oy, 
 
 @numba.njit(**_JIT)
 def _sobol_kernel(p0, lo, hi, spp, m, seed_key, base_pts, lens, motion, square, ox, oy, ou, ov, ot):
-    """The first 2^m points of the 5D Sobol sequence (:func:`sobol_points`) with a per-pixel random digital shift (XOR of the top m digits)
-    in each dimension and a jitter inside the finest stratum; sorted by t.
+    """The first 2^m points of the 5D Sobol sequence (:func:`sobol_points`)
+    with a per-pixel random digital shift (XOR of the top m digits) in each dimension and a jitter inside the finest stratum; sorted by t.
     ``base_pts`` holds the points' m-digit integer coordinates (x, y, t, a, b)."""
     nb = _FRAC_BITS
     tkeys = np.empty(spp, dtype=np.uint64)

@@ -353,7 +353,7 @@ def test_a_failing_half_of_a_two_thread_layout_raises_and_leaves_no_thread(monke
     with pytest.raises(MemoryError, match="second half"):
         layouts.prepare(s, True)
     assert not any(t.name.startswith("tile-major-layout") for t in threading.enumerate())
-    assert layouts._ready == {}
+    assert len(layouts.ahead) == 0
 
 
 @pytest.mark.parametrize("scale", [1e18, 1e25])
@@ -811,7 +811,7 @@ def test_layouts_prepared_on_another_thread_equal_those_built_in_place_and_reuse
     worker.join()
     tester.use_samples(sets[1])  # region 0 got no batch: its prepared layout is dropped on the next take
     _assert_layout(tester.layout(), sets[1], ts)
-    assert len(layouts._ready) == 1 and len(layouts._free) == 1  # region 2's waits; region 0's buffers free
+    assert len(layouts.ahead) == 1 and len(layouts._free) == 1  # region 2's waits; region 0's buffers free
     tester.use_samples(sets[2])
     tester.layout()
     tester.use_samples(make_samples(width, 24, spp, 4, lens=True, motion=True, rows=(0, 8)))

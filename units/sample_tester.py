@@ -30,6 +30,7 @@ import numpy as np
 
 from pipeline_sim.definitions import COMMON, N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
 from pipeline_sim.records import SAMPLE
+from pipeline_sim.regions import MadeAhead
 
 # its events, in the order of the kernel's event vector, and what each counts
 EVENT_MEANINGS = {
@@ -1138,28 +1139,23 @@ class TileMajorLayouts:
 
     def __init__(self, tile_size: int):
         self.tile_size = tile_size
+        self.ahead = MadeAhead()  # the layouts prepared, by sample set
         self._lock = threading.Lock()
-        self._ready: dict[int, tuple] = {}  # by id(samples): (samples, layout)
         self._free: list[tuple] = []  # buffer sets of released layouts
 
     def prepare(self, samples, waited_for: bool = False):
         """Build the layout of ``samples`` now, for a later ``take``; returns ``samples``. ``waited_for``:
         the pipeline is waiting for it (little else is running), so it lays out on both cores."""
-        layout = self._build(samples, 2 if waited_for else 1)
-        with self._lock:
-            self._ready[id(samples)] = (samples, layout)
+        self.ahead.hold(samples, self._build(samples, 2 if waited_for else 1))
         return samples
 
     def take(self, samples) -> tuple:
         """The layout of ``samples``: the one prepared, else built now. Layouts prepared for sets of
         earlier rows (regions the pipeline has passed) are released."""
-        with self._lock:
-            got = self._ready.pop(id(samples), None)
-            stale = [k for k, (s, _) in self._ready.items() if s.row0 < samples.row0]
-            old = [self._ready.pop(k)[1] for k in stale]
-        for layout in old:
+        got, passed, _ = self.ahead.take(samples)
+        for layout in passed:
             self.release(layout)
-        return got[1] if got is not None else self._build(samples)
+        return got if got is not None else self._build(samples)
 
     def release(self, layout: tuple) -> None:
         """Take back a layout the tester no longer reads; its buffers serve a later one."""

@@ -28,6 +28,7 @@ import numba as nb
 import numpy as np
 
 from pipeline_sim.definitions import N_OPS, OP_CMP, OP_MUL
+from pipeline_sim.regions import MadeAhead
 
 # its events, in the order of the kernel's event vector, and what each counts
 EVENT_MEANINGS = {
@@ -337,8 +338,8 @@ class BoxGroups:
     def __init__(self, nt: int, nl: int):
         self.nt = nt
         self.nl = nl
+        self.ahead = MadeAhead()  # the groups prepared, by sample set
         self._lock = threading.Lock()
-        self._ready: dict[int, tuple] = {}  # by id(samples): (samples, groups)
         self._free: tuple | None = None  # the buffers of groups no longer read
         self._taken: tuple | None = None
 
@@ -347,21 +348,18 @@ class BoxGroups:
         as ``TileMajorLayouts.prepare`` takes it; the groups are made on this thread either way.)"""
         box_of, order, start = self._buffers(samples)
         box_groups_kernel(samples.spp, self.nt, self.nl, samples.t, samples.u, samples.v, box_of, order, start)
-        with self._lock:
-            self._ready[id(samples)] = (samples, (box_of, order, start))
+        self.ahead.hold(samples, (box_of, order, start))
         return samples
 
     def take(self, samples) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
         """(box_of, order, start, grouped) for ``samples``: the groups prepared (``grouped`` True), else
         buffers for them, to be filled by the refresh."""
+        got, _, later = self.ahead.take(samples)
         with self._lock:
-            got = self._ready.pop(id(samples), None)
-            for k in [k for k, (s, _) in self._ready.items() if s.row0 < samples.row0]:
-                self._ready.pop(k)
             # what the groups taken before leave serves the next set's, unless that one is prepared already
-            self._free = None if self._ready else self._taken
+            self._free = None if later else self._taken
             self._taken = None
-        groups = got[1] if got is not None else self._buffers(samples)
+        groups = got if got is not None else self._buffers(samples)
         with self._lock:
             self._taken = groups
         return groups + (got is not None,)
