@@ -32,7 +32,6 @@ region from the rows of its records.
 from __future__ import annotations
 
 import bisect
-import threading
 from collections import OrderedDict
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -202,33 +201,6 @@ class RegionSamples:
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
-
-
-class MadeAhead:
-    """What a unit makes of a sample set ahead of its use (``RegionSamples``'s ``prepare``, on the thread
-    that makes the set), held by set until the unit takes it. Taking a set's drops what is held for sets
-    of earlier rows: regions the pipeline has passed. Thread-safe."""
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._held: dict[int, tuple[SampleSet, Any]] = {}  # by id(samples)
-
-    def hold(self, samples: SampleSet, made: Any) -> None:
-        with self._lock:
-            self._held[id(samples)] = (samples, made)
-
-    def take(self, samples: SampleSet) -> tuple[Any, list, bool]:
-        """(what is held for ``samples``, None if nothing; what was held for sets of earlier rows, now
-        dropped; whether something is still held, for a later set)."""
-        with self._lock:
-            got = self._held.pop(id(samples), None)
-            passed = [k for k, (s, _) in self._held.items() if s.row0 < samples.row0]
-            dropped = [self._held.pop(k)[1] for k in passed]
-            return (None if got is None else got[1]), dropped, bool(self._held)
-
-    def __len__(self) -> int:
-        with self._lock:
-            return len(self._held)
 
 
 class RegionCursor:

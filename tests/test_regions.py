@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 from pipeline_sim import render
 from pipeline_sim.config import literal as toml_literal
 from pipeline_sim.config import pass_settings
-from pipeline_sim.regions import (MadeAhead, RegionBatch, RegionCursor, RegionPlan, RegionSamples, bin_triangles,
-                                  plan_regions, region_step, row_step)
+from pipeline_sim.regions import (RegionBatch, RegionCursor, RegionPlan, RegionSamples, bin_triangles, plan_regions,
+                                  region_step, row_step)
 from pipeline_sim.render import render_scene
 from pipeline_sim.sampling import make_samples
 from pipeline_sim.scene import load_scene
@@ -169,20 +169,6 @@ def test_no_region_is_made_before_the_first_request_and_only_those_made_ahead_ar
     assert made_on == {1: threading.current_thread().name, 3: made_on[3]} and made_on[3].startswith("region-samples")
     assert prepared_on == {3: made_on[3]}
     assert regions.made == 2
-
-
-def test_made_ahead_hands_out_a_sets_own_and_drops_those_of_earlier_rows():
-    """``MadeAhead``: a set's held value is taken once; taking a set's drops (and returns) those of sets
-    of earlier rows, keeps those of later rows, and says whether any is left."""
-    sets = [make_samples(8, 64, 4, 1, lens=False, motion=True, rows=(r0, r0 + 16)) for r0 in (0, 16, 32, 48)]
-    held = MadeAhead()
-    for i in (0, 1, 3):
-        held.hold(sets[i], f"made {i}")
-    assert len(held) == 3
-    assert held.take(sets[1]) == ("made 1", ["made 0"], True)  # 0 passed; 3 still ahead
-    assert held.take(sets[2]) == (None, [], True)  # nothing held for 2
-    assert held.take(sets[3]) == ("made 3", [], False)
-    assert held.take(sets[3]) == (None, [], False) and len(held) == 0
 
 
 def test_a_region_made_ahead_and_never_requested_is_dropped():

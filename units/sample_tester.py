@@ -30,7 +30,7 @@ import numpy as np
 
 from pipeline_sim.definitions import COMMON, N_OPS, OP_CMP, OP_MADD, OP_MUL, OP_RCP
 from pipeline_sim.records import SAMPLE
-from pipeline_sim.regions import MadeAhead
+from units.made_ahead import MadeAhead
 
 # its events, in the order of the kernel's event vector, and what each counts
 EVENT_MEANINGS = {

@@ -28,7 +28,7 @@ import numba as nb
 import numpy as np
 
 from pipeline_sim.definitions import N_OPS, OP_CMP, OP_MUL
-from pipeline_sim.regions import MadeAhead
+from units.made_ahead import MadeAhead
 
 # its events, in the order of the kernel's event vector, and what each counts
 EVENT_MEANINGS = {
